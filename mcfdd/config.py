@@ -1,0 +1,356 @@
+"""Configuration: TOML files parsed once into frozen dataclasses (the edge of the package).
+
+Every section is a frozen dataclass whose fields carry their unit in the name and an allowed
+range. Parsing rejects unknown keys, wrong types and out-of-range values with a
+:class:`ConfigError` that names the key path (``runs[1].fault.size``) and what is allowed.
+Conversion to the SI pytrees the simulation uses happens here and nowhere else.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tomllib
+import types
+import typing
+from pathlib import Path
+
+from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres, turbulence
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown, of the wrong type or out of range."""
+
+
+_NO_META = {"lo": None, "hi": None, "lo_open": False, "choices": None, "doc": ""}
+
+
+def spec(default=dataclasses.MISSING, *, lo=None, hi=None, lo_open=False, choices=None, doc=""):
+    """A dataclass field with an allowed range [lo, hi] (open at lo if ``lo_open``) or choices."""
+    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "choices": choices, "doc": doc}
+    if isinstance(default, (list, dict)) or dataclasses.is_dataclass(default):
+        value = default
+        return dataclasses.field(default_factory=lambda: value, metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _describe_range(meta) -> str:
+    if meta["choices"] is not None:
+        return "one of " + ", ".join(repr(c) for c in meta["choices"])
+    lo, hi = meta["lo"], meta["hi"]
+    left = "(" if meta["lo_open"] else "["
+    return f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
+
+
+def _check_range(value, meta, path):
+    if meta["choices"] is not None:
+        if value not in meta["choices"]:
+            raise ConfigError(f"{path}: {value!r} is not allowed; expected {_describe_range(meta)}")
+        return
+    lo, hi = meta["lo"], meta["hi"]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if math.isnan(value):
+            raise ConfigError(f"{path}: nan is not a number")
+        below = lo is not None and (value <= lo if meta["lo_open"] else value < lo)
+        if below or (hi is not None and value > hi):
+            raise ConfigError(f"{path}: {value!r} is outside the allowed range {_describe_range(meta)}")
+
+
+def _type_name(tp) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(tp, value, path, meta):
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        options = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _convert(options[0], value, path, meta)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: expected a table, got {type(value).__name__} {value!r}")
+        return parse(tp, value, path)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise ConfigError(f"{path}: expected a list, got {type(value).__name__} {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{path}[{i}]", meta) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{path}: expected a list of {len(args)} values, got {len(value)}")
+        return tuple(_convert(a, v, f"{path}[{i}]", meta) for i, (a, v) in enumerate(zip(args, value)))
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{path}: expected a number, got {type(value).__name__} {value!r}")
+        value = float(value)
+    elif tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{path}: expected an integer, got {type(value).__name__} {value!r}")
+    elif tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{path}: expected true or false, got {value!r}")
+    elif tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{path}: expected a string, got {type(value).__name__} {value!r}")
+    else:
+        raise TypeError(f"unsupported configuration type {_type_name(tp)} at {path}")
+    _check_range(value, meta, path)
+    return value
+
+
+def parse(cls, data: dict, path: str = ""):
+    """Build dataclass ``cls`` from a TOML table, checking keys, types and ranges."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    prefix = f"{path}." if path else ""
+    if unknown:
+        raise ConfigError(f"{prefix}{unknown[0]}: unknown key; allowed keys are {', '.join(sorted(fields))}")
+    values = {}
+    for name, field in fields.items():
+        key_path = f"{prefix}{name}"
+        if name in data:
+            values[name] = _convert(hints[name], data[name], key_path, field.metadata or _NO_META)
+        elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{key_path}: missing required key")
+    obj = cls(**values)
+    check = getattr(obj, "check", None)
+    if check is not None:
+        check(path)
+    return obj
+
+
+def to_dict(obj) -> dict:
+    """The resolved configuration as plain data (for metadata and reports)."""
+    return dataclasses.asdict(obj)
+
+
+def to_json(obj) -> str:
+    return json.dumps(to_dict(obj), sort_keys=True, default=str)
+
+
+def load_toml(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such configuration file")
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+
+
+# --------------------------------------------------------------------------------------------
+# Plant sections
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ActuatorConfig:
+    supply_pressure_pa: float = spec(2.07e7, lo=0.0, lo_open=True, doc="hydraulic supply pressure dP")
+    ref_pressure_pa: float | None = spec(None, lo=0.0, lo_open=True, doc="dP_ref; default: equal to dP")
+    piston_area_m2: float = spec(2.272e-3, lo=0.0, lo_open=True)
+    r_arm_m: float = spec(0.0525, lo=0.0, lo_open=True)
+    max_current_ma: float = spec(8.0, lo=0.0, lo_open=True)
+    kci_mm_s_per_ma: float = spec(11.46, lo=0.0, lo_open=True)
+    kp_ma_per_mm: float = spec(2.18, lo=0.0, lo_open=True)
+    kd_n_s2_m2: float = spec(5.6e5, lo=0.0)
+    max_deflection_deg: float = spec(25.0, lo=0.0, hi=60.0, lo_open=True)
+
+    def params(self) -> actuator.ActuatorParams:
+        return actuator.ActuatorParams(
+            supply_pressure_pa=self.supply_pressure_pa,
+            ref_pressure_pa=self.ref_pressure_pa or self.supply_pressure_pa,
+            piston_area_m2=self.piston_area_m2,
+            r_arm_m=self.r_arm_m,
+            max_current_a=self.max_current_ma * 1e-3,
+            kci_m_s_a=self.kci_mm_s_per_ma,
+            kp_a_m=self.kp_ma_per_mm,
+            kd_n_s2_m2=self.kd_n_s2_m2,
+            max_deflection_rad=math.radians(self.max_deflection_deg),
+        )
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class HingeConfig:
+    area_m2: float = spec(1.93, lo=0.0, lo_open=True)
+    chord_m: float = spec(0.58, lo=0.0, lo_open=True)
+    ch0: float = spec(0.0, lo=-1.0, hi=1.0)
+    ch_alpha_per_rad: float = spec(-0.06, lo=-2.0, hi=2.0)
+    ch_delta_per_rad: float = spec(-0.25, lo=-2.0, hi=2.0)
+
+    def surface(self) -> hinge.HingeSurface:
+        return hinge.HingeSurface(self.area_m2, self.chord_m, self.ch0, self.ch_alpha_per_rad, self.ch_delta_per_rad)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class AircraftConfig:
+    wing_area_m2: float = spec(260.0, lo=0.0, lo_open=True)
+    mean_chord_m: float = spec(6.6, lo=0.0, lo_open=True)
+    span_m: float = spec(44.8, lo=0.0, lo_open=True)
+    mass_kg: float = spec(120000.0, lo=0.0, lo_open=True)
+    roll_inertia_kg_m2: float = spec(4.81e6, lo=0.0, lo_open=True)
+    monitored_share: float = spec(0.5, lo=0.0, hi=1.0, doc="share of roll power of the monitored aileron")
+    max_mach: float = spec(0.82, lo=0.1, hi=0.95, doc="flight points above this Mach number are refused")
+
+    def params(self) -> aircraft.AircraftParams:
+        return aircraft.AircraftParams(
+            wing_area_m2=self.wing_area_m2, mean_chord_m=self.mean_chord_m, span_m=self.span_m,
+            mass_kg=self.mass_kg, roll_inertia_kg_m2=self.roll_inertia_kg_m2,
+            monitored_share=self.monitored_share)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ControlLawConfig:
+    max_roll_rate_deg_s: float = spec(15.0, lo=0.0, lo_open=True)
+    bank_hold_deg: float = spec(33.0, lo=0.0, hi=90.0)
+    bank_protection_deg: float = spec(67.0, lo=0.0, hi=90.0)
+    time_constant_s: float = spec(0.5, lo=0.05, hi=10.0)
+
+    def params(self) -> control_law.RollLawParams:
+        return control_law.RollLawParams(
+            max_roll_rate_rad_s=math.radians(self.max_roll_rate_deg_s), bank_hold_rad=math.radians(self.bank_hold_deg),
+            bank_protection_rad=math.radians(self.bank_protection_deg), time_constant_s=self.time_constant_s)
+
+
+VCAS_RANGE_KT = (80.0, 420.0)
+ALTITUDE_RANGE_M = (0.0, 12500.0)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PlantConfig:
+    actuator: ActuatorConfig = spec(ActuatorConfig())
+    hinge: HingeConfig = spec(HingeConfig())
+    aircraft: AircraftConfig = spec(AircraftConfig())
+    control_law: ControlLawConfig = spec(ControlLawConfig())
+
+    def model(self) -> closed_loop.PlantModel:
+        return closed_loop.build_model(
+            self.actuator.params(), self.aircraft.params(), self.control_law.params(), self.hinge.surface(),
+            vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in VCAS_RANGE_KT), altitude_range_m=ALTITUDE_RANGE_M)
+
+    def check_flight_point(self, vcas_kt: float, altitude_m: float, path: str):
+        """Refuse a flight point above the Mach limit."""
+        m = float(atmosphere.mach(vcas_kt * atmosphere.KT_TO_M_S, altitude_m))
+        if m > self.aircraft.max_mach:
+            raise ConfigError(f"{path}: {vcas_kt} kt at {altitude_m} m is Mach {m:.3f}, above the limit "
+                              f"plant.aircraft.max_mach = {self.aircraft.max_mach}")
+
+
+# --------------------------------------------------------------------------------------------
+# Scenario sections
+
+FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class FaultConfig:
+    kind: str = spec("none", choices=FAULT_KINDS)
+    size: float = spec(0.0, lo=0.0, hi=1.0, doc="leakage: pressure loss 1 - nu1; surface_damage: 1 - nu2")
+    onset_s: float = spec(10.0, lo=0.0)
+
+    def check(self, path):
+        if self.kind == "leakage" and self.size >= 1.0:
+            raise ConfigError(f"{path}.size: {self.size} leaves no pressure (nu1 = 0); leakage size must be below 1")
+
+    def nu(self) -> tuple[float, float]:
+        """Fault parameters (nu1, nu2) once the fault is in."""
+        return {
+            "none": (1.0, 1.0),
+            "leakage": (1.0 - self.size, 1.0),
+            "surface_damage": (1.0, 1.0 - self.size),
+            "disconnection": (1.0, 0.0),
+            "jamming": (1.0, 1.0),
+        }[self.kind]
+
+    def params(self) -> actuator.ActuatorFault:
+        nu1, nu2 = self.nu()
+        parametric = self.kind in ("leakage", "surface_damage", "disconnection")
+        return actuator.ActuatorFault(
+            nu1=nu1, nu2=nu2, onset_s=self.onset_s if parametric else math.inf,
+            jam_onset_s=self.onset_s if self.kind == "jamming" else math.inf)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ManoeuvreConfig:
+    kind: str = spec("quiet", choices=manoeuvres.KINDS)
+    amplitude: float = spec(0.0, lo=-1.0, hi=1.0, doc="stick or command fraction; sign gives the direction")
+    t_start_s: float = spec(5.0, lo=0.0)
+    duration_s: float = spec(2.0, lo=0.0, lo_open=True)
+    hold_s: float = spec(2.0, lo=0.0)
+    ramp_s: float = spec(0.3, lo=0.0)
+    freq_lo_hz: float = spec(0.1, lo=0.0, lo_open=True, hi=20.0)
+    freq_hi_hz: float = spec(2.0, lo=0.0, lo_open=True, hi=20.0)
+    sideslip_deg: float = spec(0.0, lo=-15.0, hi=15.0)
+
+    def params(self) -> manoeuvres.ManoeuvreParams:
+        return manoeuvres.ManoeuvreParams(
+            kind=manoeuvres.KIND_CODE[self.kind], amplitude=self.amplitude, t_start_s=self.t_start_s,
+            duration_s=self.duration_s, hold_s=self.hold_s, ramp_s=self.ramp_s, freq_lo_hz=self.freq_lo_hz,
+            freq_hi_hz=self.freq_hi_hz, sideslip_rad=math.radians(self.sideslip_deg))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RunConfig:
+    name: str = spec()
+    vcas_kt: float = spec(250.0, lo=VCAS_RANGE_KT[0], hi=VCAS_RANGE_KT[1])
+    altitude_m: float = spec(3000.0, lo=ALTITUDE_RANGE_M[0], hi=ALTITUDE_RANGE_M[1])
+    turbulence: str = spec("light", choices=tuple(turbulence.LEVELS))
+    noise_std_mm: float = spec(0.05, lo=0.0, hi=5.0)
+    supply_pressure_scale: float = spec(1.0, lo=0.5, hi=1.5)
+    kci_scale: float = spec(1.0, lo=0.5, hi=1.5)
+    kd_scale: float = spec(1.0, lo=0.0, hi=3.0)
+    hinge_scale: float = spec(1.0, lo=0.0, hi=3.0)
+    roll_inertia_scale: float = spec(1.0, lo=0.5, hi=1.5)
+    fault: FaultConfig = spec(FaultConfig())
+    manoeuvre: ManoeuvreConfig = spec(ManoeuvreConfig())
+
+    def scenario(self) -> closed_loop.Scenario:
+        return closed_loop.Scenario(
+            vcas_m_s=self.vcas_kt * atmosphere.KT_TO_M_S, altitude_m=self.altitude_m,
+            supply_pressure_scale=self.supply_pressure_scale, kci_scale=self.kci_scale, kd_scale=self.kd_scale,
+            hinge_scale=self.hinge_scale, roll_inertia_scale=self.roll_inertia_scale,
+            noise_std_m=self.noise_std_mm * 1e-3, turbulence_level=turbulence.LEVELS[self.turbulence],
+            fault=self.fault.params(), manoeuvre=self.manoeuvre.params())
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SimulationConfig:
+    duration_s: float = spec(30.0, lo=0.0, lo_open=True, hi=3600.0)
+    dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
+    substeps: int = spec(4, lo=1, hi=64, doc="actuator integration sub-steps per sample")
+    seed: int = spec(0, lo=0)
+    precision: str = spec("float32", choices=("float32", "float64"))
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.duration_s / self.dt_s))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SimulateConfig:
+    """``mcfdd simulate``: a few named runs simulated in one batch, full time histories."""
+
+    simulation: SimulationConfig = spec(SimulationConfig())
+    plant: PlantConfig = spec(PlantConfig())
+    runs: tuple[RunConfig, ...] = spec()
+
+    def check(self, path):
+        if not self.runs:
+            raise ConfigError("runs: at least one [[runs]] table is required")
+        names = [r.name for r in self.runs]
+        for i, name in enumerate(names):
+            if names.index(name) != i:
+                raise ConfigError(f"runs[{i}].name: {name!r} is used by runs[{names.index(name)}] already")
+        for i, run in enumerate(self.runs):
+            self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
+
+
+def load(cls, path):
+    """Parse the TOML file at ``path`` into dataclass ``cls``; errors name the file and key."""
+    data = load_toml(path)
+    try:
+        return parse(cls, data)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None

@@ -1,0 +1,81 @@
+"""Files out: Parquet tables with provenance metadata, output folders (the edge of the package)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+META_PREFIX = "mcfdd."
+
+
+def package_version() -> str:
+    try:
+        return importlib_metadata.version("mcfdd")
+    except importlib_metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def git_revision() -> str:
+    """Commit of the source tree the package runs from, with ``-dirty`` if it has local changes."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True,
+                             timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("-dirty" if dirty else "")
+
+
+def provenance(config_json: str, seed: int | None, **extra) -> dict[str, str]:
+    """Key-value metadata every output table carries."""
+    meta = {"config": config_json, "seed": "" if seed is None else str(seed), "version": package_version(),
+            "git_revision": git_revision()}
+    meta.update({k: v if isinstance(v, str) else json.dumps(v) for k, v in extra.items()})
+    return meta
+
+
+def write_table(df: pd.DataFrame, path, meta: dict[str, str]) -> Path:
+    """Write ``df`` as Parquet with ``meta`` in the schema's key-value metadata (keys prefixed)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    merged = dict(table.schema.metadata or {})
+    merged.update({(META_PREFIX + k).encode(): str(v).encode() for k, v in meta.items()})
+    tmp = path.with_name(path.name + ".tmp")
+    pq.write_table(table.replace_schema_metadata(merged), tmp)
+    tmp.replace(path)
+    return path
+
+
+def read_metadata(path) -> dict[str, str]:
+    """The ``mcfdd.*`` key-value metadata of a Parquet file, prefix removed."""
+    raw = pq.read_schema(path).metadata or {}
+    return {k.decode()[len(META_PREFIX):]: v.decode() for k, v in raw.items() if k.decode().startswith(META_PREFIX)}
+
+
+def default_out_dir(command: str, config_path) -> Path:
+    return Path("results") / f"{command}-{Path(config_path).stem}"
+
+
+def write_text(path, text: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def history_frame(run_names, t_s, columns: dict) -> pd.DataFrame:
+    """Tidy table of time histories: one row per (run, time), ``columns`` maps name to (runs, steps) arrays."""
+    n_runs, n_steps = len(run_names), len(t_s)
+    data = {"run": np.repeat(np.asarray(run_names, dtype=object), n_steps), "t_s": np.tile(t_s, n_runs)}
+    data.update({name: np.asarray(values).reshape(n_runs * n_steps) for name, values in columns.items()})
+    return pd.DataFrame(data)

@@ -1,0 +1,148 @@
+"""Nonlinear hydraulic actuator with loss-of-efficiency faults, eqs. (1)-(2) of the paper.
+
+State x is the rod position (m); the surface deflection is delta = x / r_arm. Eq. (2), read with
+nu2 on the aerodynamic term (DESIGN.md section 3), has xdot on both sides. With the servo-valve
+current saturated, ``i = sat(Kp e, i_max)`` with ``e = u_c - x``, and ``g = (Kci i)^2 / dP_ref``,
+squaring gives the closed form
+
+    xdot^2 = g A / (1 + g Kd / S),   A = nu1 dP - nu2 sgn(e) F_aero / S,   sgn(xdot) = sgn(e).
+
+``A <= 0`` means the hydraulic force cannot beat the load: the rod stalls (xdot = 0). The rod
+reaches the stall position as A falls to zero, so the stall flag is raised when less than
+``STALL_MARGIN`` of the supply pressure is left. Written as a
+gain, ``xdot = k (u_c - x)`` with
+
+    k = Kci Kp s sqrt(A / (dP_ref (1 + g Kd / S))),   s = min(1, i_max / (Kp |e|)),
+
+and each sub-step integrates ``xdot = k (u_c - x)`` exactly for the gain frozen over the
+sub-step, ``x+ = u_c - e exp(-k h)``: it never overshoots the command and holds still in a stall.
+Faults step in at their onset times: leakage (nu1 < 1), surface damage or disconnection (nu2 < 1,
+nu2 = 0 disconnected) and jamming (rod frozen where it is).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from mcfdd.plant import hinge
+
+
+class ActuatorParams(NamedTuple):
+    """Physical constants of the actuator, SI units (DESIGN.md section 3 table)."""
+
+    supply_pressure_pa: float = 2.07e7
+    ref_pressure_pa: float = 2.07e7
+    piston_area_m2: float = 2.272e-3
+    r_arm_m: float = 0.0525
+    max_current_a: float = 8e-3
+    kci_m_s_a: float = 11.46
+    kp_a_m: float = 2.18
+    kd_n_s2_m2: float = 5.6e5
+    max_deflection_rad: float = math.radians(25.0)
+
+
+STALL_MARGIN = 1e-3  # stall when less than this fraction of the supply pressure is left to move the rod
+
+
+class ActuatorFault(NamedTuple):
+    """LOE fault parameters of one run. Times in s; ``inf`` means the fault never occurs."""
+
+    nu1: float = 1.0
+    nu2: float = 1.0
+    onset_s: float = math.inf
+    jam_onset_s: float = math.inf
+
+
+class ActuatorState(NamedTuple):
+    x_m: jnp.ndarray
+
+
+class ActuatorOutputs(NamedTuple):
+    """Signals at the start of a step: rod position, available pressure, stall flag, active nu."""
+
+    x_m: jnp.ndarray
+    rate_m_s: jnp.ndarray
+    dp_avail_norm: jnp.ndarray
+    stall: jnp.ndarray
+    nu1: jnp.ndarray
+    nu2: jnp.ndarray
+
+
+def _safe_sqrt(value):
+    """sqrt(max(value, 0)) with a finite gradient at and below zero."""
+    positive = value > 0.0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, value, 1.0)), 0.0)
+
+
+def available_pressure(params: ActuatorParams, nu1, nu2, load_n, error_m):
+    """A = nu1 dP - nu2 sgn(e) F_aero / S (Pa): the pressure left to move the rod."""
+    return nu1 * params.supply_pressure_pa - nu2 * jnp.sign(error_m) * load_n / params.piston_area_m2
+
+
+def gain(params: ActuatorParams, nu1, nu2, load_n, x_m, u_c_m):
+    """Nonlinear gain K of eq. (2) in closed form (1/s), such that ``xdot = K (u_c - x)``.
+
+    Returns (gain, available pressure A in Pa).
+    """
+    e = u_c_m - x_m
+    saturation = jnp.minimum(1.0, params.max_current_a / jnp.maximum(params.kp_a_m * jnp.abs(e), 1e-30))
+    current = params.kp_a_m * e * saturation
+    g = (params.kci_m_s_a * current) ** 2 / params.ref_pressure_pa
+    a = available_pressure(params, nu1, nu2, load_n, e)
+    denom = params.ref_pressure_pa * (1.0 + g * params.kd_n_s2_m2 / params.piston_area_m2)
+    k = params.kci_m_s_a * params.kp_a_m * saturation * _safe_sqrt(a / denom)
+    return k, a
+
+
+def rate(params: ActuatorParams, nu1, nu2, load_n, x_m, u_c_m):
+    """Rod rate xdot (m/s) from the closed form; zero when A <= 0 (stall)."""
+    k, _ = gain(params, nu1, nu2, load_n, x_m, u_c_m)
+    return k * (u_c_m - x_m)
+
+
+def init(params: ActuatorParams, x0_m=0.0) -> ActuatorState:
+    return ActuatorState(jnp.asarray(x0_m))
+
+
+def active_nu(fault: ActuatorFault, t_s):
+    """Fault parameters in force at time t (1 before the onset)."""
+    on = t_s >= fault.onset_s
+    return jnp.where(on, fault.nu1, 1.0), jnp.where(on, fault.nu2, 1.0)
+
+
+def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slice_n, state: ActuatorState,
+         u_c_m, t_s, dt_s: float, substeps: int):
+    """Advance the rod over one sample with ``u_c`` held (zero-order hold).
+
+    ``delta_grid_rad`` and ``load_slice_n`` are the hinge table at the run's flight point
+    (:func:`mcfdd.plant.hinge.flight_point_slice`). ``dt_s`` and ``substeps`` are static.
+    Returns (new state, :class:`ActuatorOutputs` at the start of the step).
+    """
+    nu1, nu2 = active_nu(fault, t_s)
+    jammed = t_s >= fault.jam_onset_s
+    x_max = params.r_arm_m * params.max_deflection_rad
+    h = dt_s / substeps
+
+    def load_at(x):
+        return hinge.interpolate_delta(delta_grid_rad, load_slice_n, x / params.r_arm_m)
+
+    x0 = state.x_m
+    k0, a0 = gain(params, nu1, nu2, load_at(x0), x0, u_c_m)
+    x1, k = x0, k0
+    for i in range(substeps):
+        if i:
+            k, _ = gain(params, nu1, nu2, load_at(x1), x1, u_c_m)
+        x_new = u_c_m - (u_c_m - x1) * jnp.exp(-k * h)
+        x1 = jnp.clip(jnp.where(jammed, x1, x_new), -x_max, x_max)
+    outputs = ActuatorOutputs(
+        x_m=x0,
+        rate_m_s=jnp.where(jammed, 0.0, k0 * (u_c_m - x0)),
+        dp_avail_norm=a0 / params.supply_pressure_pa,
+        stall=(a0 <= STALL_MARGIN * params.supply_pressure_pa) & ~jammed,
+        nu1=nu1,
+        nu2=nu2,
+    )
+    return ActuatorState(x1), outputs

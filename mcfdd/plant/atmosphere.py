@@ -1,0 +1,73 @@
+"""ISA atmosphere and calibrated airspeed to dynamic pressure (DESIGN.md section 3).
+
+The flight parameters p = (Vcas, h) of the paper's eq. (2) enter the hinge load through the
+dynamic pressure. Calibrated airspeed is converted with the compressible (subsonic) pitot
+relation:
+
+    qc = p0 ((1 + 0.2 (Vcas / a0)^2)^3.5 - 1)
+    M  = sqrt(5 ((qc / p + 1)^(2/7) - 1))
+    qbar = 0.7 p M^2
+
+All functions take and return SI units (m, m/s, Pa, K) and broadcast over arrays.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+P0_PA = 101325.0
+T0_K = 288.15
+RHO0_KG_M3 = 1.225
+LAPSE_K_M = 0.0065
+G0_M_S2 = 9.80665
+R_J_KG_K = 287.05287
+GAMMA = 1.4
+TROPOPAUSE_M = 11000.0
+A0_M_S = float((GAMMA * R_J_KG_K * T0_K) ** 0.5)
+KT_TO_M_S = 1852.0 / 3600.0
+FT_TO_M = 0.3048
+
+
+def isa(altitude_m):
+    """International Standard Atmosphere up to 20 km.
+
+    Returns (temperature K, pressure Pa, density kg/m^3, speed of sound m/s), each shaped like
+    ``altitude_m``.
+    """
+    h = jnp.asarray(altitude_m)
+    t_trop = T0_K - LAPSE_K_M * TROPOPAUSE_M
+    temperature = jnp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
+    exponent = G0_M_S2 / (R_J_KG_K * LAPSE_K_M)
+    p_trop = P0_PA * (t_trop / T0_K) ** exponent
+    pressure = jnp.where(
+        h < TROPOPAUSE_M,
+        P0_PA * (temperature / T0_K) ** exponent,
+        p_trop * jnp.exp(-G0_M_S2 * (h - TROPOPAUSE_M) / (R_J_KG_K * t_trop)),
+    )
+    density = pressure / (R_J_KG_K * temperature)
+    sound = jnp.sqrt(GAMMA * R_J_KG_K * temperature)
+    return temperature, pressure, density, sound
+
+
+def impact_pressure(vcas_m_s):
+    """Pitot impact pressure qc (Pa) of a calibrated airspeed, subsonic."""
+    return P0_PA * ((1.0 + 0.2 * (jnp.asarray(vcas_m_s) / A0_M_S) ** 2) ** 3.5 - 1.0)
+
+
+def mach(vcas_m_s, altitude_m):
+    """Mach number of a calibrated airspeed (m/s) at a pressure altitude (m)."""
+    _, pressure, _, _ = isa(altitude_m)
+    qc = impact_pressure(vcas_m_s)
+    return jnp.sqrt(5.0 * ((qc / pressure + 1.0) ** (2.0 / 7.0) - 1.0))
+
+
+def flight_condition(vcas_m_s, altitude_m):
+    """Dynamic pressure (Pa), Mach number and true airspeed (m/s) of a flight point."""
+    _, pressure, _, sound = isa(altitude_m)
+    m = mach(vcas_m_s, altitude_m)
+    return 0.7 * pressure * m**2, m, m * sound
+
+
+def dynamic_pressure(vcas_m_s, altitude_m):
+    """Dynamic pressure qbar (Pa) of a calibrated airspeed (m/s) at an altitude (m)."""
+    return flight_condition(vcas_m_s, altitude_m)[0]

@@ -1,0 +1,180 @@
+"""The simulated world of one run: flight point, actuator, roll axis, control law, pilot, wind.
+
+A run is described by a :class:`Scenario` of traced numbers (flight point, uncertainty scales,
+fault, manoeuvre, turbulence level, sensor noise). :func:`prepare` turns it, with the constants of
+a :class:`PlantModel`, into the per-run :class:`RunParams` (scheduled gains, hinge-table slice,
+discretised turbulence); :func:`init` and :func:`step` are the pure pair that a scan runs. One
+step at time t:
+
+1. pilot inputs of the manoeuvre, gusts of the turbulence filters;
+2. the roll-rate law turns stick and measured roll rate into the surface command, unless an
+   open-loop profile drives the actuator directly; u_c = delta_c r_arm;
+3. the actuator advances with u_c held over the sample; its rod position x(t) plus sensor noise is
+   the measurement u(t);
+4. the roll axis advances with the effective aileron deflection.
+
+Everything is written for one scenario; batches come from ``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, turbulence
+
+DT_S = 0.01
+NOISE_DIM = 4  # normals per step: three for turbulence, one for the position sensor
+
+
+class Scenario(NamedTuple):
+    """Traced description of one run. SI units; scales are multiplicative (1 = nominal)."""
+
+    vcas_m_s: float = 250.0 * atmosphere.KT_TO_M_S
+    altitude_m: float = 3000.0
+    supply_pressure_scale: float = 1.0
+    kci_scale: float = 1.0
+    kd_scale: float = 1.0
+    hinge_scale: float = 1.0
+    roll_inertia_scale: float = 1.0
+    noise_std_m: float = 5e-5
+    turbulence_level: float = 1.0
+    fault: actuator.ActuatorFault = actuator.ActuatorFault()
+    manoeuvre: manoeuvres.ManoeuvreParams = manoeuvres.ManoeuvreParams()
+
+
+class PlantModel(NamedTuple):
+    """Constants shared by all runs, including the hinge-load table."""
+
+    actuator: actuator.ActuatorParams
+    aircraft: aircraft.AircraftParams
+    law: control_law.RollLawParams
+    table: hinge.HingeTable
+
+
+class RunParams(NamedTuple):
+    actuator: actuator.ActuatorParams
+    fault: actuator.ActuatorFault
+    delta_grid_rad: jnp.ndarray
+    load_slice_n: jnp.ndarray
+    aircraft: aircraft.AircraftParams
+    law: control_law.RollLawParams
+    gains: control_law.RollLawGains
+    turbulence: turbulence.TurbulenceParams
+    manoeuvre: manoeuvres.ManoeuvreParams
+    qbar_pa: jnp.ndarray
+    tas_m_s: jnp.ndarray
+    roll_inertia_kg_m2: jnp.ndarray
+    noise_std_m: jnp.ndarray
+
+
+class PlantState(NamedTuple):
+    actuator: actuator.ActuatorState
+    roll: aircraft.RollState
+    integrator: jnp.ndarray
+    gust: jnp.ndarray
+
+
+class PlantOutputs(NamedTuple):
+    """Signals at the start of a step (time t). Rod positions in m, angles in rad."""
+
+    u_c_m: jnp.ndarray
+    u_m: jnp.ndarray
+    x_m: jnp.ndarray
+    dp_avail_norm: jnp.ndarray
+    stall: jnp.ndarray
+    p_rad_s: jnp.ndarray
+    phi_rad: jnp.ndarray
+    stick: jnp.ndarray
+    nu1: jnp.ndarray
+    nu2: jnp.ndarray
+
+
+def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircraft.AircraftParams(),
+                law_params=control_law.RollLawParams(), surface=hinge.HingeSurface(),
+                vcas_range_m_s=(40.0, 220.0), altitude_range_m=(0.0, 13000.0), grid=(37, 27, 51)) -> PlantModel:
+    """Plant constants with the hinge table tabulated over the given ranges (uniform grids)."""
+    max_delta = actuator_params.max_deflection_rad
+    table = hinge.build_table(
+        surface, actuator_params.r_arm_m, lambda qbar: aircraft.trim_alpha(aircraft_params, qbar),
+        jnp.linspace(*vcas_range_m_s, grid[0]), jnp.linspace(*altitude_range_m, grid[1]),
+        jnp.linspace(-max_delta, max_delta, grid[2]))
+    return PlantModel(actuator_params, aircraft_params, law_params, table)
+
+
+def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunParams:
+    """Per-run parameters: uncertainties applied, gains scheduled, turbulence discretised."""
+    nominal = model.actuator
+    act = nominal._replace(
+        supply_pressure_pa=nominal.supply_pressure_pa * scenario.supply_pressure_scale,
+        kci_m_s_a=nominal.kci_m_s_a * scenario.kci_scale,
+        kd_n_s2_m2=nominal.kd_n_s2_m2 * scenario.kd_scale,
+    )
+    qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
+    load = hinge.flight_point_slice(model.table, scenario.vcas_m_s, scenario.altitude_m) * scenario.hinge_scale
+    roll_damping, aileron_power = aircraft.roll_derivatives(model.aircraft, qbar, tas, model.aircraft.roll_inertia_kg_m2)
+    return RunParams(
+        actuator=act,
+        fault=scenario.fault,
+        delta_grid_rad=model.table.delta_rad,
+        load_slice_n=load,
+        aircraft=model.aircraft,
+        law=model.law,
+        gains=control_law.schedule(model.law, roll_damping, aileron_power),
+        turbulence=turbulence.discretise(scenario.turbulence_level, scenario.altitude_m, tas,
+                                         model.aircraft.span_m, dt_s),
+        manoeuvre=scenario.manoeuvre,
+        qbar_pa=qbar,
+        tas_m_s=tas,
+        roll_inertia_kg_m2=model.aircraft.roll_inertia_kg_m2 * scenario.roll_inertia_scale,
+        noise_std_m=jnp.asarray(scenario.noise_std_m),
+    )
+
+
+def init(params: RunParams, noise3) -> PlantState:
+    """Trimmed wings-level start; turbulence from its stationary distribution (3 normals)."""
+    zero = jnp.zeros_like(params.qbar_pa)
+    return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
+                      turbulence.init(params.turbulence, noise3))
+
+
+def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 4,
+         kinds: tuple[int, ...] = tuple(range(len(manoeuvres.KINDS)))):
+    """One sample of the closed loop. ``noise`` holds NOISE_DIM standard normals.
+
+    Returns (new state, :class:`PlantOutputs` at time ``t_s``).
+    """
+    act = params.actuator
+    pilot = manoeuvres.inputs(params.manoeuvre, t_s, kinds)
+    gust_next, (v_gust, p_gust) = turbulence.step(params.turbulence, state.gust, noise[:3])
+    max_delta = act.max_deflection_rad
+    p_cmd = control_law.roll_rate_demand(params.law, pilot.stick, state.roll.phi_rad)
+    integrator, delta_c = control_law.step(params.law, params.gains, state.integrator, p_cmd,
+                                           state.roll.p_rad_s, max_delta, dt_s)
+    delta_c = jnp.where(pilot.open_loop, jnp.clip(pilot.command, -1.0, 1.0) * max_delta, delta_c)
+    u_c = delta_c * act.r_arm_m
+    act_state, out = actuator.step(act, params.fault, params.delta_grid_rad, params.load_slice_n,
+                                   state.actuator, u_c, t_s, dt_s, substeps)
+    delta_eff = aircraft.effective_aileron(params.aircraft, out.x_m / act.r_arm_m, delta_c, out.nu2)
+    roll = aircraft.step(params.aircraft, state.roll, delta_eff, pilot.sideslip_rad, p_gust, v_gust,
+                         params.qbar_pa, params.tas_m_s, params.roll_inertia_kg_m2, dt_s)
+    outputs = PlantOutputs(
+        u_c_m=u_c,
+        u_m=out.x_m + params.noise_std_m * noise[3],
+        x_m=out.x_m,
+        dp_avail_norm=out.dp_avail_norm,
+        stall=out.stall,
+        p_rad_s=state.roll.p_rad_s,
+        phi_rad=state.roll.phi_rad,
+        stick=pilot.stick,
+        nu1=out.nu1,
+        nu2=out.nu2,
+    )
+    return PlantState(act_state, roll, integrator, gust_next), outputs
+
+
+def deflection_deg(x_m, r_arm_m):
+    """Surface deflection (deg) of a rod position (m)."""
+    return x_m / r_arm_m * (180.0 / math.pi)
