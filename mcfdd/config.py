@@ -16,6 +16,11 @@ import types
 import typing
 from pathlib import Path
 
+import numpy as np
+
+from mcfdd.fdd import evaluator, lpv, stall, system
+from mcfdd.analysis import campaign as campaign_sim
+from mcfdd.analysis import scenarios as space
 from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres, turbulence
 
 
@@ -69,6 +74,8 @@ def _convert(tp, value, path, meta):
             return None
         return _convert(options[0], value, path, meta)
     if dataclasses.is_dataclass(tp):
+        if hasattr(tp, "from_toml"):
+            return tp.from_toml(value, path)
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: expected a table, got {type(value).__name__} {value!r}")
         return parse(tp, value, path)
@@ -241,35 +248,15 @@ class PlantConfig:
 # --------------------------------------------------------------------------------------------
 # Scenario sections
 
-FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
-
-
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class FaultConfig:
-    kind: str = spec("none", choices=FAULT_KINDS)
+    kind: str = spec("none", choices=space.FAULT_KINDS)
     size: float = spec(0.0, lo=0.0, hi=1.0, doc="leakage: pressure loss 1 - nu1; surface_damage: 1 - nu2")
     onset_s: float = spec(10.0, lo=0.0)
 
     def check(self, path):
         if self.kind == "leakage" and self.size >= 1.0:
             raise ConfigError(f"{path}.size: {self.size} leaves no pressure (nu1 = 0); leakage size must be below 1")
-
-    def nu(self) -> tuple[float, float]:
-        """Fault parameters (nu1, nu2) once the fault is in."""
-        return {
-            "none": (1.0, 1.0),
-            "leakage": (1.0 - self.size, 1.0),
-            "surface_damage": (1.0, 1.0 - self.size),
-            "disconnection": (1.0, 0.0),
-            "jamming": (1.0, 1.0),
-        }[self.kind]
-
-    def params(self) -> actuator.ActuatorFault:
-        nu1, nu2 = self.nu()
-        parametric = self.kind in ("leakage", "surface_damage", "disconnection")
-        return actuator.ActuatorFault(
-            nu1=nu1, nu2=nu2, onset_s=self.onset_s if parametric else math.inf,
-            jam_onset_s=self.onset_s if self.kind == "jamming" else math.inf)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -283,12 +270,6 @@ class ManoeuvreConfig:
     freq_lo_hz: float = spec(0.1, lo=0.0, lo_open=True, hi=20.0)
     freq_hi_hz: float = spec(2.0, lo=0.0, lo_open=True, hi=20.0)
     sideslip_deg: float = spec(0.0, lo=-15.0, hi=15.0)
-
-    def params(self) -> manoeuvres.ManoeuvreParams:
-        return manoeuvres.ManoeuvreParams(
-            kind=manoeuvres.KIND_CODE[self.kind], amplitude=self.amplitude, t_start_s=self.t_start_s,
-            duration_s=self.duration_s, hold_s=self.hold_s, ramp_s=self.ramp_s, freq_lo_hz=self.freq_lo_hz,
-            freq_hi_hz=self.freq_hi_hz, sideslip_rad=math.radians(self.sideslip_deg))
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -306,13 +287,100 @@ class RunConfig:
     fault: FaultConfig = spec(FaultConfig())
     manoeuvre: ManoeuvreConfig = spec(ManoeuvreConfig())
 
-    def scenario(self) -> closed_loop.Scenario:
-        return closed_loop.Scenario(
-            vcas_m_s=self.vcas_kt * atmosphere.KT_TO_M_S, altitude_m=self.altitude_m,
-            supply_pressure_scale=self.supply_pressure_scale, kci_scale=self.kci_scale, kd_scale=self.kd_scale,
-            hinge_scale=self.hinge_scale, roll_inertia_scale=self.roll_inertia_scale,
-            noise_std_m=self.noise_std_mm * 1e-3, turbulence_level=turbulence.LEVELS[self.turbulence],
-            fault=self.fault.params(), manoeuvre=self.manoeuvre.params())
+    def columns(self) -> dict:
+        """The run as a row of a scenario table (see :mod:`mcfdd.analysis.scenarios`)."""
+        m = self.manoeuvre
+        return {
+            "vcas_kt": self.vcas_kt, "altitude_m": self.altitude_m, "supply_pressure_scale": self.supply_pressure_scale,
+            "kci_scale": self.kci_scale, "kd_scale": self.kd_scale, "hinge_scale": self.hinge_scale,
+            "roll_inertia_scale": self.roll_inertia_scale, "noise_std_mm": self.noise_std_mm,
+            "turbulence": self.turbulence, "fault_kind": self.fault.kind, "fault_size": self.fault.size,
+            "fault_onset_s": self.fault.onset_s, "manoeuvre_kind": m.kind, "amplitude": m.amplitude,
+            "t_start_s": m.t_start_s, "duration_s": m.duration_s, "hold_s": m.hold_s, "ramp_s": m.ramp_s,
+            "freq_lo_hz": m.freq_lo_hz, "freq_hi_hz": m.freq_hi_hz, "sideslip_deg": m.sideslip_deg,
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# FDD sections. Residual thresholds and signal levels are in degrees of surface deflection
+# (rod position / r_arm); the FDD itself works on rod positions in m.
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvaluatorConfig:
+    """Narendra evaluator of eq. (14)."""
+
+    alpha: float = spec(0.0, lo=0.0, doc="weight of |r|")
+    beta: float = spec(1.0, lo=0.0, doc="weight of the forgetting integral of |r|")
+    gamma_1_s: float = spec(0.1, lo=0.0, lo_open=True, hi=1000.0, doc="forgetting factor")
+
+    def params(self) -> evaluator.NarendraParams:
+        return evaluator.NarendraParams(self.alpha, self.beta, self.gamma_1_s)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LoeDetectionConfig:
+    """Model-detection bank for parametric LOE faults (Section 4, paper defaults of 6.1.1)."""
+
+    pole_1_s: float = spec(1.0, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
+    evaluator: EvaluatorConfig = spec(EvaluatorConfig())
+    tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
+                      doc="threshold on theta_i / ||u||, about the relative gain mismatch |k_j - k_i| / k0_i")
+    excitation_floor_deg: float = spec(0.5, lo=0.0, doc="no decision while ||u|| is below this")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SignalRulesConfig:
+    """Signal-based stall identification, eqs. (32)-(35)."""
+
+    rate_min_deg_s: float = spec(2.0, lo=0.0, lo_open=True, doc="u_dot_min of (33)")
+    command_min_deg: float = spec(10.0, lo=0.0, doc="tau_uc,max of (34)")
+    position_min_deg: float = spec(10.0, lo=0.0, doc="tau_u,max of (34)")
+    window_s: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="re-anchoring window of the mean rate (32)")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ModelRuleConfig:
+    """Stall identification by model detection with Q_sl, eq. (30)."""
+
+    k_sl_1_s: float = spec(0.1, lo=0.0, lo_open=True, hi=1.0, doc="stall-model gain (paper: 0.01..0.1)")
+    pole_1_s: float = spec(5.0, lo=0.0, lo_open=True, hi=1000.0, doc="a_sl")
+    evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=0.0, beta=10.0, gamma_1_s=10.0))
+    tau_deg: float = spec(8.0, lo=0.0, lo_open=True, doc="tau_sl: stall while theta_sl stays below")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class StallDetectionConfig:
+    """Stall-load detector (Section 5; paper evaluator alpha = beta = 1, gamma = 0.1)."""
+
+    pole_1_s: float = spec(10.0, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of eq. (20)")
+    evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=1.0, beta=1.0, gamma_1_s=0.1))
+    tau_deg: float = spec(1.0, lo=0.0, lo_open=True, doc="threshold tau of eq. (25)")
+    identification: str = spec("signal", choices=("signal", "model"), doc="which eta is eta_stall")
+    signal: SignalRulesConfig = spec(SignalRulesConfig())
+    model: ModelRuleConfig = spec(ModelRuleConfig())
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class FddConfig:
+    bank: str = spec("default", doc="LPV bank JSON file, or 'default' for the bank shipped with mcfdd")
+    loe: LoeDetectionConfig = spec(LoeDetectionConfig())
+    stall: StallDetectionConfig = spec(StallDetectionConfig())
+
+    def params(self, bank: lpv.GainBank, r_arm_m: float) -> system.FddParams:
+        """FDD parameters in rod units for an actuator with lever arm ``r_arm_m``."""
+        deg = math.radians(1.0) * r_arm_m
+        loe, stl = self.loe, self.stall
+        return system.FddParams(
+            loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
+                                 excitation_floor=loe.excitation_floor_deg * deg),
+            stall=system.StallParams(
+                pole=stl.pole_1_s, evaluator=stl.evaluator.params(), tau=stl.tau_deg * deg,
+                signal=stall.SignalRules(stl.signal.rate_min_deg_s * deg, stl.signal.command_min_deg * deg,
+                                         stl.signal.position_min_deg * deg, stl.signal.window_s),
+                model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, stl.model.evaluator.params(),
+                                      stl.model.tau_deg * deg)),
+        )
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -334,6 +402,7 @@ class SimulateConfig:
 
     simulation: SimulationConfig = spec(SimulationConfig())
     plant: PlantConfig = spec(PlantConfig())
+    fdd: FddConfig = spec(FddConfig())
     runs: tuple[RunConfig, ...] = spec()
 
     def check(self, path):
@@ -345,6 +414,159 @@ class SimulateConfig:
                 raise ConfigError(f"runs[{i}].name: {name!r} is used by runs[{names.index(name)}] already")
         for i, run in enumerate(self.runs):
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
+
+
+# --------------------------------------------------------------------------------------------
+# Campaigns
+
+# Each scenario-table column is checked against the range of the matching single-run key.
+_COLUMN_FIELDS = {
+    **{f.name: (RunConfig, f.name) for f in dataclasses.fields(RunConfig) if f.name not in ("name", "fault", "manoeuvre")},
+    "fault_kind": (FaultConfig, "kind"), "fault_onset_s": (FaultConfig, "onset_s"),
+    "leakage_size": (FaultConfig, "size"), "surface_damage_size": (FaultConfig, "size"),
+    "manoeuvre_kind": (ManoeuvreConfig, "kind"),
+    **{f.name: (ManoeuvreConfig, f.name) for f in dataclasses.fields(ManoeuvreConfig) if f.name != "kind"},
+}
+_SIZE_COLUMNS = {"leakage_size": "leakage", "surface_damage_size": "surface_damage"}
+
+
+@dataclasses.dataclass(frozen=True)
+class SpaceConfig:
+    """Scenario space: one axis per table column.
+
+    In TOML a key takes a number or a name (constant), ``[lo, hi]`` (uniform range), a list of
+    names (choices), ``{ values = [...] }`` (discrete numbers) or ``{ range = [lo, hi], n = 5 }``
+    (a range with 5 grid points when gridded). Fault sizes are drawn per kind
+    (``leakage_size``, ``surface_damage_size``) and combined into ``fault_size``.
+    """
+
+    axes: tuple[space.Axis, ...] = ()
+
+    @classmethod
+    def from_toml(cls, data, path):
+        if not isinstance(data, dict):
+            raise ConfigError(f"{path}: expected a table of axes")
+        axes = []
+        for name, value in data.items():
+            key = f"{path}.{name}"
+            if name not in _COLUMN_FIELDS:
+                raise ConfigError(f"{key}: unknown axis; allowed axes are {', '.join(sorted(_COLUMN_FIELDS))}")
+            axes.append(_axis(name, value, key))
+        return cls(tuple(axes))
+
+    def axis(self, name):
+        return next((a for a in self.axes if a.name == name), None)
+
+
+def _field_meta(name):
+    owner, field_name = _COLUMN_FIELDS[name]
+    field = next(f for f in dataclasses.fields(owner) if f.name == field_name)
+    return typing.get_type_hints(owner)[field_name], dict(field.metadata)
+
+
+def _axis(name, value, path) -> space.Axis:
+    tp, meta = _field_meta(name)
+    if name == "leakage_size":
+        meta["hi"] = 0.95
+    def one(v, p):
+        return _convert(tp, v, p, meta)
+
+    if isinstance(value, dict):
+        extra = sorted(set(value) - {"values", "range", "n"})
+        if extra:
+            raise ConfigError(f"{path}.{extra[0]}: unknown key; an axis table takes values, or range and n")
+        if "values" in value:
+            vals = value["values"]
+            if not isinstance(vals, list) or not vals:
+                raise ConfigError(f"{path}.values: expected a non-empty list")
+            return space.Axis(name, "values", tuple(one(v, f"{path}.values[{i}]") for i, v in enumerate(vals)))
+        if "range" not in value:
+            raise ConfigError(f"{path}: an axis table needs 'values' or 'range'")
+        axis = _axis(name, value["range"], f"{path}.range")
+        n = value.get("n", 2)
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ConfigError(f"{path}.n: expected a positive integer, got {n!r}")
+        return dataclasses.replace(axis, n=n)
+    if isinstance(value, list):
+        if tp is str:
+            if not value:
+                raise ConfigError(f"{path}: expected a non-empty list of names")
+            return space.Axis(name, "choices", tuple(one(v, f"{path}[{i}]") for i, v in enumerate(value)))
+        if len(value) != 2:
+            raise ConfigError(f"{path}: a range is [lo, hi]; for discrete values write {{ values = [...] }}")
+        lo, hi = one(value[0], f"{path}[0]"), one(value[1], f"{path}[1]")
+        if hi < lo:
+            raise ConfigError(f"{path}: range [{lo}, {hi}] is empty")
+        return space.Axis(name, "range", lo=lo, hi=hi, n=2)
+    return space.Axis(name, "const", (one(value, path),))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class CampaignSettings:
+    scenarios: int = spec(1000, lo=1, hi=10_000_000, doc="samples (times the grid cells when axes are gridded)")
+    design: str = spec("sobol", choices=space.DESIGNS)
+    grid: tuple[str, ...] = spec((), doc="axes on a full grid, crossed with samples over the others")
+    seed: int = spec(0, lo=0)
+    chunk_size: int = spec(1024, lo=1, hi=1_000_000)
+    duration_s: float = spec(60.0, lo=0.0, lo_open=True, hi=3600.0)
+    dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
+    substeps: int = spec(4, lo=1, hi=64)
+    precision: str = spec("float32", choices=("float32", "float64"))
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.duration_s / self.dt_s))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvaluationConfig:
+    """How runs are scored (DESIGN.md section 5)."""
+
+    settle_s: float = spec(5.0, lo=0.0, doc="decisions before this are not scored")
+    t_detec_s: float = spec(120.0, lo=0.0, lo_open=True, doc="required detection time after the fault onset")
+    stall_grace_s: float = spec(0.5, lo=0.0, doc="eta = 1 this soon after a stall load is not a false alarm")
+    stall_min_duration_s: float = spec(0.1, lo=0.0, doc="shorter stall intervals are not relevant events")
+    stall_min_error_deg: float = spec(1.0, lo=0.0, doc="stall events whose tracking error stays below are not relevant")
+    stall_window_s: float = spec(0.5, lo=0.0, lo_open=True, doc="required stall detection/identification time")
+
+    def settings(self, r_arm_m: float) -> campaign_sim.Settings:
+        return campaign_sim.Settings(self.settle_s, self.t_detec_s, self.stall_grace_s, self.stall_min_duration_s,
+                                 math.radians(self.stall_min_error_deg) * r_arm_m, self.stall_window_s)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class CampaignConfig:
+    """``mcfdd campaign``: a scenario space sampled, simulated in chunks and scored."""
+
+    campaign: CampaignSettings = spec(CampaignSettings())
+    evaluation: EvaluationConfig = spec(EvaluationConfig())
+    plant: PlantConfig = spec(PlantConfig())
+    fdd: FddConfig = spec(FddConfig())
+    space: SpaceConfig = spec(SpaceConfig())
+
+    def check(self, path):
+        for i, name in enumerate(self.campaign.grid):
+            axis = self.space.axis(name)
+            if axis is None or axis.kind == "const":
+                raise ConfigError(f"campaign.grid[{i}]: {name!r} is not a varying axis of [space]")
+        vcas = self.space.axis("vcas_kt") or space.Axis("vcas_kt", "const", (space.DEFAULTS["vcas_kt"],))
+        alt = self.space.axis("altitude_m") or space.Axis("altitude_m", "const", (space.DEFAULTS["altitude_m"],))
+        self.plant.check_flight_point(min(vcas.grid_values()), max(alt.grid_values()),
+                                      "space: the lowest vcas_kt at the highest altitude_m")
+
+    def design(self):
+        """Scenario columns of the design (dict of arrays) and their number of rows."""
+        c = self.campaign
+        cols, n = space.design_table(list(self.space.axes), c.scenarios, c.design, c.seed, c.grid,
+                                         self.plant.aircraft.max_mach)
+        kind = np.asarray(cols.get("fault_kind", np.full(n, space.DEFAULTS["fault_kind"])))
+        size = np.zeros(n)
+        for column, fault in _SIZE_COLUMNS.items():
+            if column in cols:
+                size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
+        if any(c in {a.name for a in self.space.axes} for c in _SIZE_COLUMNS):
+            cols["fault_size"] = size
+        return cols, n
 
 
 def load(cls, path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 from importlib import metadata as importlib_metadata
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -79,3 +80,21 @@ def history_frame(run_names, t_s, columns: dict) -> pd.DataFrame:
     data = {"run": np.repeat(np.asarray(run_names, dtype=object), n_steps), "t_s": np.tile(t_s, n_runs)}
     data.update({name: np.asarray(values).reshape(n_runs * n_steps) for name, values in columns.items()})
     return pd.DataFrame(data)
+
+
+DEFAULT_BANK = "default_bank.json"
+
+
+def save_bank(path, bank_dict: dict) -> Path:
+    """Write an LPV bank in its versioned JSON form (:func:`mcfdd.fdd.lpv.to_dict`)."""
+    return write_text(path, json.dumps(bank_dict, indent=2) + "\n")
+
+
+def load_bank_dict(path=None) -> dict:
+    """Read an LPV bank's JSON form; ``None`` reads the bank shipped with the package."""
+    if path is None:
+        return json.loads(resources.files("mcfdd.data").joinpath(DEFAULT_BANK).read_text())
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such LPV bank file")
+    return json.loads(path.read_text())

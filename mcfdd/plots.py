@@ -37,3 +37,52 @@ def run_timeseries(df: pd.DataFrame, title: str) -> Figure:
     ax2.set_xlabel("time (s)")
     ax2.grid(alpha=0.3)
     return fig
+
+
+def rates_by_stratum(summ: pd.DataFrame, group: str) -> Figure:
+    """FAR and MDR with their exact 95 % intervals for each stratum of one grouping."""
+    sub = summ[summ["group"] == group]
+    fig = Figure(figsize=(9, 1.2 + 0.35 * len(sub)), constrained_layout=True)
+    axes = fig.subplots(1, 2, sharey=True)
+    y = np.arange(len(sub))
+    for ax, (name, lo, hi, title) in zip(axes, (("far", "far_lo", "far_hi", "false-alarm rate"),
+                                               ("mdr", "mdr_lo", "mdr_hi", "missed-detection rate"))):
+        value = sub[name].to_numpy(dtype=float)
+        err = np.vstack([value - sub[lo].to_numpy(dtype=float), sub[hi].to_numpy(dtype=float) - value])
+        ax.errorbar(value, y, xerr=np.nan_to_num(err), fmt="o", capsize=3)
+        ax.set_xlim(-0.02, 1.02)
+        ax.set_title(f"{title} (95 % CI)")
+        ax.grid(alpha=0.3)
+    axes[0].set_yticks(y, sub["stratum"])
+    axes[0].invert_yaxis()
+    fig.suptitle(f"by {group}")
+    return fig
+
+
+def detection_times(df: pd.DataFrame, classes: pd.Series) -> Figure:
+    """Distribution of detection latency per fault class (detected runs)."""
+    detected = df["detected"].to_numpy(dtype=bool)
+    labels = sorted(set(classes[detected]))
+    fig = Figure(figsize=(9, 1.2 + 0.4 * max(len(labels), 1)), constrained_layout=True)
+    ax = fig.subplots()
+    data = [df.loc[detected & (classes == c), "detection_latency_s"].to_numpy() for c in labels]
+    if data:
+        ax.boxplot(data, vert=False, tick_labels=labels, whis=(0, 95))
+    ax.set_xlabel("detection time after fault onset (s); whiskers: min and 95th percentile")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def confusion_matrix(conf: pd.DataFrame) -> Figure:
+    """Heat map of true against decided model counts."""
+    fig = Figure(figsize=(1.8 + 1.1 * conf.shape[1], 1.5 + 0.5 * conf.shape[0]), constrained_layout=True)
+    ax = fig.subplots()
+    values = conf.to_numpy()
+    ax.imshow(values, cmap="Blues")
+    ax.set_xticks(range(conf.shape[1]), conf.columns, rotation=30, ha="right")
+    ax.set_yticks(range(conf.shape[0]), conf.index)
+    for (i, j), v in np.ndenumerate(values):
+        ax.text(j, i, str(v), ha="center", va="center", color="white" if v > values.max() / 2 else "black")
+    ax.set_xlabel("decided model")
+    ax.set_ylabel("true (nearest) model")
+    return fig

@@ -11,6 +11,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
+from mcfdd.fdd import system
 from mcfdd.plant import closed_loop
 
 
@@ -42,3 +43,29 @@ def plant_history(model: closed_loop.PlantModel, scenario: closed_loop.Scenario,
 def plant_batch(model, scenarios, keys, n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...]):
     """Batched :func:`plant_history`: scenarios and keys carry a leading batch axis."""
     return jax.vmap(lambda s, k: plant_history(model, s, k, n_steps, dt_s, substeps, kinds))(scenarios, keys)
+
+
+def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenario: closed_loop.Scenario, key,
+                n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...]):
+    """Plant and FDD together over one run: (PlantOutputs, FddOutputs), leading axis n_steps."""
+    params = closed_loop.prepare(model, scenario, dt_s)
+    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    zero = jnp.zeros_like(params.qbar_pa)
+    fdd_state = system.init(fdd_params, zero, zero)
+
+    def body(carry, k):
+        plant_state, fdd_state = carry
+        noise = step_noise(key, k + 1, closed_loop.NOISE_DIM)
+        t = k * dt_s
+        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
+        fdd_state, fdd_out = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
+                                         scenario.altitude_m, t, dt_s)
+        return (plant_state, fdd_state), (out, fdd_out)
+
+    return jax.lax.scan(body, (plant_state, fdd_state), jnp.arange(n_steps))[1]
+
+
+@partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
+def fdd_batch(model, fdd_params, scenarios, keys, n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...]):
+    """Batched :func:`fdd_history`."""
+    return jax.vmap(lambda s, k: fdd_history(model, fdd_params, s, k, n_steps, dt_s, substeps, kinds))(scenarios, keys)

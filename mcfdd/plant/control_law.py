@@ -26,7 +26,7 @@ class RollLawParams(NamedTuple):
     bank_protection_rad: float = math.radians(67.0)
     time_constant_s: float = 0.5
     bank_return_gain_1_s: float = 0.5
-    protection_gain_1_s: float = 1.0
+    protection_gain_1_s: float = 0.5  # <= 1 / (4 time_constant): bank approaches the limit without overshoot
     stick_deadband: float = 0.02
 
 

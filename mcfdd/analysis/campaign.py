@@ -1,0 +1,222 @@
+"""Batched Monte-Carlo simulation with online reductions (DESIGN.md sections 2 and 5).
+
+Plant and both FDD systems run together in one scan per scenario; the carry holds, besides the
+dynamic states, running reductions of what a campaign reports, so memory is O(batch), not
+O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
+
+- LOE model detection: false alarm (a decision for a fault model after the settling time, before
+  any fault and away from stall loads) with its first time and model; detection (first decision
+  for a fault model within [t_f, t_f + t_detec]) with time and model; per filter i the largest
+  ratio theta_i / ||u|| before the fault and the smallest within the detection window (excited
+  samples only, where a decision can be made); the fault-free filter's largest ratio (no false
+  alarm is possible while it stays below tau) and, over the detection window, the peak of the
+  smallest ratio among the filters that must all fire (those not accepted for the true fault).
+- Stall loads: events are the intervals where the plant's stall flag is set; an event is
+  relevant if it lasts at least ``stall_min_duration_s`` and the tracking error reaches
+  ``stall_min_error_m``. Counted: relevant events, identified ones per identification method and
+  the worst latency (first eta = 1 minus onset) of each method; eta = 1 outside events (after a
+  grace period following an event); the stall detector's largest theta outside events before any
+  fault (its false-alarm bound, eq. 26) and, per relevant event, the peak theta within
+  ``stall_window_s`` of the onset (its smallest value over the run feeds the detection bound,
+  eq. 27, read as "detected within the window").
+- status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from mcfdd.analysis.simulate import step_noise
+from mcfdd.fdd import decision, system
+from mcfdd.plant import closed_loop
+
+STATUS_OK = 0
+STATUS_NON_FINITE = 1
+
+
+class Settings(NamedTuple):
+    """Evaluation settings (traced; times in s, error in m)."""
+
+    settle_s: float
+    t_detec_s: float
+    stall_grace_s: float
+    stall_min_duration_s: float
+    stall_min_error_m: float
+    stall_window_s: float
+
+
+class Truth(NamedTuple):
+    """What a scenario's evaluation needs to know: fault onset and acceptable models (N,)."""
+
+    onset_s: jnp.ndarray
+    accept: jnp.ndarray
+
+
+class Reduction(NamedTuple):
+    finite: jnp.ndarray
+    fa_time: jnp.ndarray
+    fa_model: jnp.ndarray
+    det_time: jnp.ndarray
+    det_model: jnp.ndarray
+    ratio_max_pre: jnp.ndarray
+    ratio_min_post: jnp.ndarray
+    others_min_peak: jnp.ndarray
+    in_event: jnp.ndarray
+    event_start: jnp.ndarray
+    event_max_error: jnp.ndarray
+    event_theta_peak: jnp.ndarray
+    event_eta_signal: jnp.ndarray
+    event_eta_model: jnp.ndarray
+    last_stall_end: jnp.ndarray
+    n_events: jnp.ndarray
+    n_identified_signal: jnp.ndarray
+    n_identified_model: jnp.ndarray
+    worst_latency_signal: jnp.ndarray
+    worst_latency_model: jnp.ndarray
+    theta_peak_min: jnp.ndarray
+    eta_outside_signal: jnp.ndarray
+    eta_outside_model: jnp.ndarray
+    theta_stall_max_free: jnp.ndarray
+
+
+def reduction_init(n_models: int, dtype) -> Reduction:
+    inf = jnp.asarray(jnp.inf, dtype)
+    zero_i = jnp.asarray(0, jnp.int32)
+    return Reduction(
+        finite=jnp.asarray(True), fa_time=inf, fa_model=jnp.asarray(decision.NO_DECISION, jnp.int32), det_time=inf,
+        det_model=jnp.asarray(decision.NO_DECISION, jnp.int32), ratio_max_pre=jnp.full(n_models, -inf),
+        ratio_min_post=jnp.full(n_models, inf), others_min_peak=-inf, in_event=jnp.asarray(False),
+        event_start=inf, event_max_error=jnp.zeros((), dtype), event_theta_peak=-inf, event_eta_signal=inf,
+        event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
+        n_identified_model=zero_i, worst_latency_signal=-inf, worst_latency_model=-inf, theta_peak_min=inf,
+        eta_outside_signal=inf, eta_outside_model=inf, theta_stall_max_free=-inf)
+
+
+def _close_event(s: Settings, red: Reduction, t_end, closing):
+    """Book the current stall event if ``closing`` (its last sample was before ``t_end``)."""
+    relevant = closing & (t_end - red.event_start >= s.stall_min_duration_s) & (red.event_max_error >= s.stall_min_error_m)
+    found_sig = relevant & jnp.isfinite(red.event_eta_signal)
+    found_mod = relevant & jnp.isfinite(red.event_eta_model)
+    return red._replace(
+        n_events=red.n_events + relevant.astype(jnp.int32),
+        n_identified_signal=red.n_identified_signal + found_sig.astype(jnp.int32),
+        n_identified_model=red.n_identified_model + found_mod.astype(jnp.int32),
+        worst_latency_signal=jnp.where(found_sig, jnp.maximum(red.worst_latency_signal,
+                                                              red.event_eta_signal - red.event_start),
+                                       red.worst_latency_signal),
+        worst_latency_model=jnp.where(found_mod, jnp.maximum(red.worst_latency_model,
+                                                             red.event_eta_model - red.event_start),
+                                      red.worst_latency_model),
+        theta_peak_min=jnp.where(relevant, jnp.minimum(red.theta_peak_min, red.event_theta_peak), red.theta_peak_min),
+        last_stall_end=jnp.where(closing, t_end, red.last_stall_end),
+        in_event=red.in_event & ~closing,
+    )
+
+
+def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_loop.PlantOutputs,
+                   fdd: system.FddOutputs) -> Reduction:
+    """Fold one sample into the running reductions."""
+    stall_now = plant.stall
+    red = _close_event(s, red, t, red.in_event & ~stall_now)
+    opening = stall_now & ~red.in_event
+    error = jnp.abs(plant.u_c_m - plant.x_m)
+    red = red._replace(
+        in_event=red.in_event | opening,
+        event_start=jnp.where(opening, t, red.event_start),
+        event_max_error=jnp.where(opening, error, jnp.maximum(red.event_max_error, jnp.where(stall_now, error, 0.0))),
+        event_theta_peak=jnp.where(opening, fdd.theta_stall, jnp.where(
+            stall_now & (t - red.event_start <= s.stall_window_s), jnp.maximum(red.event_theta_peak, fdd.theta_stall),
+            red.event_theta_peak)),
+        event_eta_signal=jnp.where(opening, jnp.inf, red.event_eta_signal),
+        event_eta_model=jnp.where(opening, jnp.inf, red.event_eta_model),
+    )
+    red = red._replace(
+        event_eta_signal=jnp.where(stall_now & fdd.eta_signal, jnp.minimum(red.event_eta_signal, t),
+                                   red.event_eta_signal),
+        event_eta_model=jnp.where(stall_now & fdd.eta_model, jnp.minimum(red.event_eta_model, t),
+                                  red.event_eta_model),
+    )
+    settled = t >= s.settle_s
+    clear_of_stall = ~stall_now & (t - red.last_stall_end > s.stall_grace_s)
+    before_fault = t < truth.onset_s
+    fault_model = fdd.detected >= 1
+    new_fa = settled & before_fault & clear_of_stall & fault_model & ~jnp.isfinite(red.fa_time)
+    in_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s)
+    new_det = in_window & fault_model & ~jnp.isfinite(red.det_time)
+    ratio = fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0)
+    pre = settled & before_fault & clear_of_stall & fdd.excited
+    post = in_window & fdd.excited
+    others_min = jnp.min(jnp.where(truth.accept, jnp.inf, ratio))
+    quiet = settled & before_fault & clear_of_stall
+    finite = jnp.isfinite(plant.u_m) & jnp.isfinite(fdd.theta_stall) & jnp.all(jnp.isfinite(fdd.theta))
+    return red._replace(
+        finite=red.finite & finite,
+        fa_time=jnp.where(new_fa, t, red.fa_time),
+        fa_model=jnp.where(new_fa, fdd.detected, red.fa_model),
+        det_time=jnp.where(new_det, t, red.det_time),
+        det_model=jnp.where(new_det, fdd.detected, red.det_model),
+        ratio_max_pre=jnp.where(pre, jnp.maximum(red.ratio_max_pre, ratio), red.ratio_max_pre),
+        ratio_min_post=jnp.where(post, jnp.minimum(red.ratio_min_post, ratio), red.ratio_min_post),
+        others_min_peak=jnp.where(post, jnp.maximum(red.others_min_peak, others_min), red.others_min_peak),
+        eta_outside_signal=jnp.where(settled & clear_of_stall & fdd.eta_signal,
+                                     jnp.minimum(red.eta_outside_signal, t), red.eta_outside_signal),
+        eta_outside_model=jnp.where(settled & clear_of_stall & fdd.eta_model,
+                                    jnp.minimum(red.eta_outside_model, t), red.eta_outside_model),
+        theta_stall_max_free=jnp.where(quiet, jnp.maximum(red.theta_stall_max_free, fdd.theta_stall),
+                                       red.theta_stall_max_free),
+    )
+
+
+def finalize(s: Settings, red: Reduction, t_end) -> dict:
+    """Close an event still open at the end of the run; outcomes as a dict of arrays."""
+    red = _close_event(s, red, t_end, red.in_event)
+    return {
+        "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
+        "false_alarm_time_s": red.fa_time, "false_alarm_model": red.fa_model,
+        "detection_time_s": red.det_time, "detected_model": red.det_model,
+        "ratio_max_pre": red.ratio_max_pre, "ratio_min_post": red.ratio_min_post,
+        "others_min_peak": red.others_min_peak,
+        "stall_events": red.n_events, "stall_identified_signal": red.n_identified_signal,
+        "stall_identified_model": red.n_identified_model, "stall_worst_latency_signal_s": red.worst_latency_signal,
+        "stall_worst_latency_model_s": red.worst_latency_model, "stall_theta_peak_min": red.theta_peak_min,
+        "eta_outside_signal_time_s": red.eta_outside_signal, "eta_outside_model_time_s": red.eta_outside_model,
+        "stall_theta_max_free": red.theta_stall_max_free,
+    }
+
+
+def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: Settings,
+            scenario: closed_loop.Scenario, truth: Truth, key, n_steps: int, dt_s: float, substeps: int,
+            kinds: tuple[int, ...]) -> dict:
+    """Outcomes of one scenario (no time histories kept)."""
+    params = closed_loop.prepare(model, scenario, dt_s)
+    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    zero = jnp.zeros_like(params.qbar_pa)
+    fdd_state = system.init(fdd_params, zero, zero)
+    n_models = fdd_params.loe.bank.k0.shape[0]
+    red = reduction_init(n_models, zero.dtype)
+
+    def body(carry, k):
+        plant_state, fdd_state, red = carry
+        t = k * dt_s
+        plant_state, out = closed_loop.step(params, plant_state, t, step_noise(key, k + 1, closed_loop.NOISE_DIM),
+                                            dt_s, substeps, kinds)
+        fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
+                                    scenario.altitude_m, t, dt_s)
+        return (plant_state, fdd_state, reduction_step(settings, truth, red, t, out, fo)), None
+
+    (_, _, red), _ = jax.lax.scan(body, (plant_state, fdd_state, red), jnp.arange(n_steps))
+    return finalize(settings, red, n_steps * dt_s)
+
+
+@partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
+def run_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
+              kinds: tuple[int, ...]) -> dict:
+    """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit."""
+    def one(scenario, truth, key):
+        return run_one(model, fdd_params, settings, scenario, truth, key, n_steps, dt_s, substeps, kinds)
+
+    return jax.vmap(one)(scenarios, truths, keys)

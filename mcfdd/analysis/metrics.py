@@ -1,0 +1,108 @@
+"""FDD performance metrics (DESIGN.md section 5): outcomes per scenario, rates with exact intervals.
+
+- False alarm: a decision for a fault model (or eta = 1) with no fault present and no stall
+  under way, after the settling time. FAR = runs with a false alarm / runs.
+- Detection time: first decision for a fault model after the fault onset; missed detection if
+  none within the detection window [t_f, t_f + t_detec] (cut at the end of the run).
+- Identification: correct if the detected model is the grid model nearest to the true fault or
+  one of the two that bracket it.
+- Rates carry exact Clopper-Pearson intervals: zero events in n runs only shows a rate below
+  about 3/n at 95 %.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import betaincinv
+
+
+def clopper_pearson(k, n, confidence: float = 0.95):
+    """Exact two-sided binomial interval (lo, hi) for k successes in n trials (broadcasts).
+
+    Empty samples (n = 0) give (nan, nan).
+    """
+    k = np.asarray(k, dtype=float)
+    n = np.asarray(n, dtype=float)
+    alpha = 1.0 - confidence
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = np.where(k > 0, betaincinv(k, n - k + 1.0, alpha / 2.0), 0.0)
+        hi = np.where(k < n, betaincinv(k + 1.0, n - k, 1.0 - alpha / 2.0), 1.0)
+    empty = n <= 0
+    return np.where(empty, np.nan, lo), np.where(empty, np.nan, hi)
+
+
+def rate(k: int, n: int, confidence: float = 0.95) -> dict:
+    """Count, trials, rate and exact interval as a dict (rate nan when n = 0)."""
+    lo, hi = clopper_pearson(k, n, confidence)
+    return {"k": int(k), "n": int(n), "rate": (k / n) if n else float("nan"), "lo": float(lo), "hi": float(hi)}
+
+
+def quantiles(values) -> dict:
+    """Median, 95th percentile and maximum of the finite values (nan when there are none)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {"median": float("nan"), "p95": float("nan"), "max": float("nan")}
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
+
+
+def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: float) -> dict:
+    """Per-scenario outcome columns from the simulator's reductions (numpy arrays, one row each).
+
+    ``onset_s`` is inf for fault-free rows; ``accept`` (n, N) marks acceptable identifications;
+    ``nearest`` is the true (nearest) model id, -1 for non-parametric faults.
+    """
+    onset = np.asarray(onset_s, dtype=float)
+    ok = np.asarray(raw["status"]) == 0
+    det_time = np.asarray(raw["detection_time_s"], dtype=float)
+    det_model = np.asarray(raw["detected_model"])
+    faulty = np.isfinite(onset)
+    detected = ok & faulty & np.isfinite(det_time)
+    rows = np.arange(len(onset))
+    correct = detected & accept[rows, np.clip(det_model, 0, accept.shape[1] - 1)] & (det_model >= 0)
+    eta_sig = np.asarray(raw["eta_outside_signal_time_s"], dtype=float)
+    eta_mod = np.asarray(raw["eta_outside_model_time_s"], dtype=float)
+    before = np.where(faulty, onset, np.inf)
+    n_events = np.asarray(raw["stall_events"])
+    return {
+        "status": np.asarray(raw["status"]),
+        "true_model": np.asarray(nearest),
+        "window_s": np.where(faulty, np.minimum(t_detec_s, np.maximum(duration_s - onset, 0.0)), np.nan),
+        "false_alarm": ok & np.isfinite(np.asarray(raw["false_alarm_time_s"], dtype=float)),
+        "false_alarm_time_s": np.asarray(raw["false_alarm_time_s"], dtype=float),
+        "false_alarm_model": np.asarray(raw["false_alarm_model"]),
+        "detected": detected,
+        "detection_time_s": np.where(detected, det_time, np.nan),
+        "detection_latency_s": np.where(detected, det_time - onset, np.nan),
+        "detected_model": np.where(detected, det_model, -1),
+        "identified_correctly": correct,
+        "stall_events": n_events,
+        "stall_identified_signal": np.asarray(raw["stall_identified_signal"]),
+        "stall_identified_model": np.asarray(raw["stall_identified_model"]),
+        "stall_worst_latency_signal_s": _finite_or_nan(raw["stall_worst_latency_signal_s"]),
+        "stall_worst_latency_model_s": _finite_or_nan(raw["stall_worst_latency_model_s"]),
+        "eta_false_signal": ok & (eta_sig < before),
+        "eta_false_signal_time_s": _finite_or_nan(eta_sig),
+        "eta_false_model": ok & (eta_mod < before),
+        "eta_false_model_time_s": _finite_or_nan(eta_mod),
+        "stall_theta_max_free": _finite_or_nan(raw["stall_theta_max_free"]),
+        "stall_theta_peak_min": _finite_or_nan(raw["stall_theta_peak_min"]),
+        "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
+        "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
+    }
+
+
+def _finite_or_nan(values):
+    v = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(v), v, np.nan)
+
+
+def bound_with_witness(values, scenario_ids, kind: str):
+    """Supremum (kind='sup') or infimum ('inf') of the finite values and the scenario where it occurs."""
+    v = np.asarray(values, dtype=float)
+    finite = np.isfinite(v)
+    if not finite.any():
+        return float("nan"), -1
+    idx = np.flatnonzero(finite)
+    best = idx[np.argmax(v[idx])] if kind == "sup" else idx[np.argmin(v[idx])]
+    return float(v[best]), int(np.asarray(scenario_ids)[best])

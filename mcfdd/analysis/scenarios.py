@@ -1,0 +1,210 @@
+"""Scenario spaces, sampling designs and the column vocabulary of scenario tables.
+
+A scenario is one row of a table whose columns carry their unit in the name (``vcas_kt``,
+``fault_onset_s``). :func:`to_scenario` turns columns (scalars or arrays) into the traced
+:class:`~mcfdd.plant.closed_loop.Scenario` pytree, so single runs and campaigns share one
+conversion.
+
+A space has one :class:`Axis` per column: a constant, a continuous range, discrete values or
+named choices. A design maps the unit hypercube to the axes: full grid, random, Latin hypercube
+or Sobol (``scipy.stats.qmc``), or a grid over some axes crossed with samples over the others.
+The flight envelope is respected by construction: Vcas is drawn between its lower bound and the
+smaller of its upper bound and the Mach-limit speed at the drawn altitude (grid points above the
+limit are dropped), which keeps the stratification of the design in the unit cube.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+from scipy.stats import qmc
+
+from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres, turbulence
+
+FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
+PARAMETRIC = ("leakage", "surface_damage", "disconnection")
+
+DEFAULTS = {
+    "vcas_kt": 250.0, "altitude_m": 3000.0, "supply_pressure_scale": 1.0, "kci_scale": 1.0, "kd_scale": 1.0,
+    "hinge_scale": 1.0, "roll_inertia_scale": 1.0, "noise_std_mm": 0.05, "turbulence": "light",
+    "fault_kind": "none", "fault_size": 0.0, "fault_onset_s": 10.0, "manoeuvre_kind": "quiet", "amplitude": 0.0,
+    "t_start_s": 5.0, "duration_s": 2.0, "hold_s": 2.0, "ramp_s": 0.3, "freq_lo_hz": 0.1, "freq_hi_hz": 2.0,
+    "sideslip_deg": 0.0,
+}
+CATEGORICAL = {"turbulence": tuple(turbulence.LEVELS), "fault_kind": FAULT_KINDS, "manoeuvre_kind": manoeuvres.KINDS}
+DESIGNS = ("grid", "random", "lhs", "sobol")
+
+
+def fault_nu(kind, size):
+    """(nu1, nu2) once the fault is in; broadcasts over arrays of kind names and sizes."""
+    kind = np.asarray(kind)
+    size = np.asarray(size, dtype=float)
+    nu1 = np.where(kind == "leakage", 1.0 - size, 1.0)
+    nu2 = np.where(kind == "surface_damage", 1.0 - size, np.where(kind == "disconnection", 0.0, 1.0))
+    return nu1, nu2
+
+
+def to_scenario(cols: dict, dtype=np.float32) -> closed_loop.Scenario:
+    """Scenario pytree (SI units) from table columns; missing columns take :data:`DEFAULTS`.
+
+    Columns are scalars or arrays of one shape; the leaves of the result have that shape.
+    """
+    shape = np.broadcast_shapes(*(np.shape(v) for v in cols.values()))
+    c = {k: np.broadcast_to(np.asarray(cols.get(k, v)), shape) for k, v in DEFAULTS.items()}
+    f = np.dtype(dtype)
+    kind = c["fault_kind"]
+    nu1, nu2 = fault_nu(kind, c["fault_size"])
+    onset = c["fault_onset_s"].astype(float)
+    parametric = np.isin(kind, PARAMETRIC)
+    level = np.vectorize(turbulence.LEVELS.__getitem__, otypes=[float])(c["turbulence"])
+    code = np.vectorize(manoeuvres.KIND_CODE.__getitem__, otypes=[np.int32])(c["manoeuvre_kind"])
+    return closed_loop.Scenario(
+        vcas_m_s=(c["vcas_kt"] * atmosphere.KT_TO_M_S).astype(f),
+        altitude_m=c["altitude_m"].astype(f),
+        supply_pressure_scale=c["supply_pressure_scale"].astype(f),
+        kci_scale=c["kci_scale"].astype(f),
+        kd_scale=c["kd_scale"].astype(f),
+        hinge_scale=c["hinge_scale"].astype(f),
+        roll_inertia_scale=c["roll_inertia_scale"].astype(f),
+        noise_std_m=(c["noise_std_mm"] * 1e-3).astype(f),
+        turbulence_level=level.astype(f),
+        fault=actuator.ActuatorFault(
+            nu1=nu1.astype(f), nu2=nu2.astype(f), onset_s=np.where(parametric, onset, np.inf).astype(f),
+            jam_onset_s=np.where(kind == "jamming", onset, np.inf).astype(f)),
+        manoeuvre=manoeuvres.ManoeuvreParams(
+            kind=code, amplitude=c["amplitude"].astype(f), t_start_s=c["t_start_s"].astype(f),
+            duration_s=c["duration_s"].astype(f), hold_s=c["hold_s"].astype(f), ramp_s=c["ramp_s"].astype(f),
+            freq_lo_hz=c["freq_lo_hz"].astype(f), freq_hi_hz=c["freq_hi_hz"].astype(f),
+            sideslip_rad=np.radians(c["sideslip_deg"]).astype(f)),
+    )
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One column of a scenario space.
+
+    kind: 'const' (``values[0]``), 'range' (uniform on [lo, hi]; ``n`` points when gridded),
+    'values' (discrete numbers) or 'choices' (names).
+    """
+
+    name: str
+    kind: str
+    values: tuple = ()
+    lo: float = 0.0
+    hi: float = 0.0
+    n: int = 0
+
+    def grid_values(self) -> tuple:
+        if self.kind == "range":
+            return tuple(np.linspace(self.lo, self.hi, self.n)) if self.n > 1 else (self.lo,)
+        return self.values
+
+    def from_unit(self, u):
+        """Map uniform numbers in [0, 1) to axis values."""
+        if self.kind == "range":
+            return self.lo + u * (self.hi - self.lo)
+        options = np.asarray(self.values)
+        return options[np.minimum((u * len(options)).astype(int), len(options) - 1)]
+
+
+def mach_limit_speed_kt(altitude_m, max_mach: float):
+    """Calibrated airspeed (kt) at which the Mach limit is reached, per altitude."""
+    def one(h):
+        return brentq(lambda v: float(atmosphere.mach(v * atmosphere.KT_TO_M_S, h)) - max_mach, 10.0, 2000.0)
+
+    return np.vectorize(one, otypes=[float])(altitude_m)
+
+
+def unit_sample(design: str, dim: int, n: int, seed: int) -> np.ndarray:
+    """n points in [0, 1)^dim by the named design (random, lhs or sobol), deterministic in seed."""
+    if dim == 0:
+        return np.zeros((n, 0))
+    if design == "random":
+        return np.random.default_rng(seed).random((n, dim))
+    if design == "lhs":
+        return qmc.LatinHypercube(d=dim, seed=seed).random(n)
+    if design == "sobol":
+        return qmc.Sobol(d=dim, scramble=True, seed=seed).random(n)
+    raise ValueError(f"unknown sampling design {design!r}; expected one of {', '.join(DESIGNS[1:])}")
+
+
+def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_axes=(), max_mach: float = 0.82):
+    """Columns (dict of arrays) of a design: grid axes crossed with ``n_samples`` draws of the rest.
+
+    With ``design == 'grid'`` every non-constant axis is gridded and ``n_samples`` is ignored.
+    Rows whose grid flight point lies above the Mach limit are dropped. Returns (columns, n_rows).
+    """
+    by_name = {a.name: a for a in axes}
+    varying = [a for a in axes if a.kind != "const"]
+    gridded = [a for a in varying if design == "grid" or a.name in grid_axes]
+    sampled = [a for a in varying if a not in gridded]
+    cells = [dict(zip([a.name for a in gridded], combo)) for combo in
+             np.array(np.meshgrid(*[np.arange(len(a.grid_values())) for a in gridded], indexing="ij")).reshape(
+                 len(gridded), -1).T] if gridded else [{}]
+    per_cell = 1 if design == "grid" else n_samples
+    u = unit_sample("random" if design == "grid" else design, len(sampled), per_cell, seed)
+    cols: dict[str, np.ndarray] = {}
+    for a in axes:
+        if a.kind == "const":
+            cols[a.name] = np.repeat(np.asarray([a.values[0]]), len(cells) * per_cell)
+    for a in gridded:
+        vals = np.asarray(a.grid_values())
+        cols[a.name] = np.repeat(np.array([vals[c[a.name]] for c in cells]), per_cell)
+    for j, a in enumerate(sampled):
+        uj = np.tile(u[:, j], len(cells))
+        if a.name == "vcas_kt" and a.kind == "range":
+            cols["_u_vcas"] = uj
+        else:
+            cols[a.name] = a.from_unit(uj)
+    n = len(cells) * per_cell
+    altitude = np.asarray(cols.get("altitude_m", np.full(n, DEFAULTS["altitude_m"])), dtype=float)
+    v_max = mach_limit_speed_kt(np.unique(altitude), max_mach)
+    v_max = v_max[np.searchsorted(np.unique(altitude), altitude)]
+    if "_u_vcas" in cols:
+        a = by_name["vcas_kt"]
+        cols["vcas_kt"] = a.lo + cols.pop("_u_vcas") * (np.minimum(a.hi, v_max) - a.lo)
+    keep = np.asarray(cols.get("vcas_kt", np.full(n, DEFAULTS["vcas_kt"])), dtype=float) <= v_max + 1e-9
+    cols = {k: np.asarray(v)[keep] for k, v in cols.items()}
+    return cols, int(keep.sum())
+
+
+def true_model(nu_bank: np.ndarray, kind, size):
+    """Nearest bank model to each fault and the set of acceptable identifications (Fig. 4).
+
+    Surface damage and disconnection are matched among the models with nu1 = 1 on nu2, leakage
+    among the models with nu2 = 1 on nu1. A detected model is correct if it is the nearest one or
+    one of the two models that bracket the fault. Returns (nearest id (n,), accept mask (n, N));
+    fault-free and jamming rows accept no fault model (nearest = 0 for fault-free, -1 for jamming).
+    """
+    kind = np.asarray(kind)
+    nu1, nu2 = fault_nu(kind, size)
+    n, n_models = kind.shape[0], nu_bank.shape[0]
+    nearest = np.where(kind == "jamming", -1, 0).astype(np.int32)
+    accept = np.zeros((n, n_models), dtype=bool)
+    families = ((np.isin(kind, ("surface_damage", "disconnection")), 1, nu2, np.isclose(nu_bank[:, 0], 1.0)),
+                (kind == "leakage", 0, nu1, np.isclose(nu_bank[:, 1], 1.0)))
+    for rows, axis, value, members in families:
+        ids = np.flatnonzero(members)
+        grid = nu_bank[ids, axis]
+        for r in np.flatnonzero(rows):
+            dist = np.abs(grid - value[r])
+            near = ids[np.argmin(dist)]
+            below = ids[grid <= value[r] + 1e-12]
+            above = ids[grid >= value[r] - 1e-12]
+            nearest[r] = near
+            accept[r, near] = True
+            if below.size:
+                accept[r, below[np.argmax(nu_bank[below, axis])]] = True
+            if above.size:
+                accept[r, above[np.argmin(nu_bank[above, axis])]] = True
+    return nearest, accept
+
+
+def fault_onsets(cols: dict, n: int):
+    """Time (s) a fault of any kind starts, inf for fault-free rows."""
+    kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
+    onset = np.asarray(cols.get("fault_onset_s", np.full(n, DEFAULTS["fault_onset_s"])), dtype=float)
+    return np.where(kind == "none", math.inf, onset)

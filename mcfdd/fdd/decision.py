@@ -1,0 +1,47 @@
+"""Decision making: eq. (15) with its normalisation, signature decoding, and eq. (25).
+
+The paper compares theta_i with tau_i ||u|| and leaves ||u|| undefined. Here ||u|| is the same
+Narendra evaluator run on the band-passed command ``a/(s+a) * s/(s+k0) u_c``, the signal that
+carries the residuals (for a frozen flight point, filter i on model j gives
+``(k_j - k_i)/k0_i * a/(s+a) * s/(s+k_j) u_c``). The ratio theta_i / ||u|| is then close to the
+relative gain mismatch |k_j - k_i| / k0_i, so one threshold tau_m serves all filters. Below an
+excitation floor no decision is made: the signature is only meaningful while the command moves.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+NO_DECISION = -1
+
+
+def excitation_init(u_c0):
+    """State of the band-pass (a/(s+a) then s/(s+k0)) for a start at rest at u_c0."""
+    u_c0 = jnp.asarray(u_c0)
+    return jnp.stack([u_c0, u_c0])
+
+
+def excitation_step(state, u_c, a, k0, dt_s: float):
+    """Band-passed command, exact for u_c held over the sample. Returns (new state, output)."""
+    low, slow = state[0], state[1]
+    phi_a = jnp.exp(-a * dt_s)
+    phi_0 = jnp.exp(-k0 * dt_s)
+    out = low - slow
+    return jnp.stack([phi_a * low + (1.0 - phi_a) * u_c, phi_0 * slow + (1.0 - phi_0) * low]), out
+
+
+def signature(theta, theta_u, tau):
+    """iota_i = [theta_i >= tau_i ||u||], eq. (15). Shapes broadcast over models."""
+    return theta >= tau * theta_u
+
+
+def decode(iota, excited):
+    """Model id from a signature: the index of its only zero, else NO_DECISION (-1)."""
+    zeros = ~iota
+    single = jnp.sum(zeros) == 1
+    return jnp.where(single & excited, jnp.argmax(zeros), NO_DECISION).astype(jnp.int32)
+
+
+def threshold(theta, tau):
+    """iota = [theta >= tau], eq. (25)."""
+    return theta >= tau

@@ -1,0 +1,99 @@
+"""Stall-load identification, Section 5.4: model detection (a) and signal-based rules (b).
+
+(a) Model detection with Q_sl, eq. (30): the stalled actuator is modelled as a first-order lag
+with a very small gain k_sl (0.01..0.1 1/s). Q_sl is the detector of eq. (20) with k = k0 = k_sl
+and its own pole a_sl (:mod:`mcfdd.fdd.residual`), evaluated by its own Narendra filter; a stall
+is identified while the stall detector fires (iota = 1) and theta_sl stays below tau_sl. A jammed
+rod follows the stall model just as well, so conditions (34) and (35) of (b) gate (a) too:
+jamming is of interest at small deflections, stall loads occur at large ones.
+
+(b) Signal-based rules, started at the detection time t_d (rising edge of iota):
+
+    (33) |mean rate| = |u(t) - u(t_a)| / (t - t_a) <= u_dot_min
+    (34) |u_c| >= tau_uc,max  and  |u| >= tau_u,max
+    (35) sgn(u_c - u) = sgn(u)
+
+and eta = 1 while iota = 1 and all three hold. The anchor (t_a, u(t_a)) of the mean rate (32) is
+set at t_d; because the evaluator holds iota up long after a stall ends, the anchor also moves to
+the current sample whenever the rod has been seen moving (mean rate above u_dot_min) over at least
+``window_s`` since the anchor. A later stall within the same alarm is then identified from a fresh
+anchor instead of a mean rate diluted by the motion in between.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from mcfdd.fdd import evaluator, residual
+
+
+class SignalRules(NamedTuple):
+    """Parameters of the signal-based identification, rod units (m, m/s, s)."""
+
+    rate_min_m_s: float
+    command_min_m: float
+    position_min_m: float
+    window_s: float
+
+
+class ModelRule(NamedTuple):
+    """Parameters of identification by model detection with Q_sl."""
+
+    k_sl: float
+    pole: float
+    evaluator: evaluator.NarendraParams
+    tau: float
+
+
+class SignalState(NamedTuple):
+    anchor_t_s: jnp.ndarray
+    anchor_u_m: jnp.ndarray
+    iota_prev: jnp.ndarray
+
+
+def large_signals(rules: SignalRules, u_c, u):
+    """Condition (34)."""
+    return (jnp.abs(u_c) >= rules.command_min_m) & (jnp.abs(u) >= rules.position_min_m)
+
+
+def outward(u_c, u):
+    """Condition (35): the command lies beyond the position, away from neutral."""
+    return jnp.sign(u_c - u) == jnp.sign(u)
+
+
+def signal_init(u0) -> SignalState:
+    u0 = jnp.asarray(u0)
+    return SignalState(jnp.zeros_like(u0), u0, jnp.zeros_like(u0, dtype=bool))
+
+
+def signal_step(rules: SignalRules, state: SignalState, iota, u_c, u, t_s):
+    """Rules (32)-(35) with the anchor logic of the module docstring. Returns (new state, eta)."""
+    rising = iota & ~state.iota_prev
+    anchor_t = jnp.where(rising, t_s, state.anchor_t_s)
+    anchor_u = jnp.where(rising, u, state.anchor_u_m)
+    elapsed = t_s - anchor_t
+    mean_rate = jnp.abs(u - anchor_u) / jnp.maximum(elapsed, 1e-9)
+    slow = (elapsed > 0.0) & (mean_rate <= rules.rate_min_m_s)
+    eta = iota & slow & large_signals(rules, u_c, u) & outward(u_c, u)
+    moved = (elapsed >= rules.window_s) & (mean_rate > rules.rate_min_m_s)
+    new = SignalState(jnp.where(moved, t_s, anchor_t), jnp.where(moved, u, anchor_u), iota)
+    return new, eta
+
+
+class ModelState(NamedTuple):
+    x_q: jnp.ndarray
+    xi: jnp.ndarray
+
+
+def model_init(u0) -> ModelState:
+    return ModelState(residual.init(u0), evaluator.init(jnp.asarray(u0)))
+
+
+def model_step(rule: ModelRule, gate: SignalRules, state: ModelState, iota, u_c, u, dt_s: float):
+    """Identification (a). Returns (new state, eta, r_sl, theta_sl)."""
+    x_q, r_sl = residual.step(state.x_q, u, u_c, rule.k_sl, rule.k_sl, rule.pole, dt_s)
+    xi, theta_sl = evaluator.step(rule.evaluator, state.xi, r_sl, dt_s)
+    eta = iota & (theta_sl < rule.tau) & large_signals(gate, u_c, u) & outward(u_c, u)
+    return ModelState(x_q, xi), eta, r_sl, theta_sl

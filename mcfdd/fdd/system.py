@@ -1,0 +1,109 @@
+"""The on-board FDD: both of the paper's systems in one pure step over measured signals.
+
+- Model detection for parametric LOE faults (Fig. 1, Section 4): a bank of detectors (20) with
+  the gains k^(i) of the LPV bank, Narendra evaluators, the normalised decision (15) and the
+  signature decoding into a detected model id.
+- Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
+  evaluator and decision (25), and both identification methods of Section 5.4.
+
+Inputs are what an aircraft has: the command u_c, the measured rod position u and the flight
+parameters p = (Vcas, h). All numbers that may be tuned are leaves of :class:`FddParams`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from mcfdd.fdd import decision, evaluator, lpv, residual, stall
+
+
+class LoeParams(NamedTuple):
+    bank: lpv.GainBank
+    pole: float  # a of the bank's filters and of the excitation band-pass (1/s)
+    evaluator: evaluator.NarendraParams
+    tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
+    excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
+
+
+class StallParams(NamedTuple):
+    pole: float
+    evaluator: evaluator.NarendraParams
+    tau: float  # on theta, rod units
+    signal: stall.SignalRules
+    model: stall.ModelRule
+
+
+class FddParams(NamedTuple):
+    loe: LoeParams
+    stall: StallParams
+
+
+class FddState(NamedTuple):
+    bank_xq: jnp.ndarray
+    bank_xi: jnp.ndarray
+    band: jnp.ndarray
+    band_xi: jnp.ndarray
+    stall_xq: jnp.ndarray
+    stall_xi: jnp.ndarray
+    signal: stall.SignalState
+    model: stall.ModelState
+
+
+class FddOutputs(NamedTuple):
+    r: jnp.ndarray  # (N,) bank residuals (m)
+    theta: jnp.ndarray  # (N,) evaluated residuals
+    theta_u: jnp.ndarray  # ||u||, evaluated band-passed command
+    excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
+    iota: jnp.ndarray  # (N,) signature
+    detected: jnp.ndarray  # model id, -1 for no decision
+    r_stall: jnp.ndarray
+    theta_stall: jnp.ndarray
+    iota_stall: jnp.ndarray
+    eta_signal: jnp.ndarray
+    eta_model: jnp.ndarray
+    theta_sl: jnp.ndarray
+
+
+def init(params: FddParams, u0, u_c0) -> FddState:
+    """State for a start at rest at measured position u0 and command u_c0."""
+    n = params.loe.bank.k0.shape[0]
+    u0 = jnp.asarray(u0)
+    bank_xq = jnp.broadcast_to(residual.init(u0), (n,))
+    return FddState(
+        bank_xq=bank_xq,
+        bank_xi=jnp.zeros_like(bank_xq),
+        band=decision.excitation_init(u_c0),
+        band_xi=jnp.zeros_like(u0),
+        stall_xq=residual.init(u0),
+        stall_xi=jnp.zeros_like(u0),
+        signal=stall.signal_init(u0),
+        model=stall.model_init(u0),
+    )
+
+
+def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, dt_s: float):
+    """One sample of both FDD systems. Returns (new state, :class:`FddOutputs` at time t)."""
+    loe, stl = params.loe, params.stall
+    bank = loe.bank
+    direction = jnp.sign(u_c - u)
+    k = lpv.gains(bank, u, direction, vcas_m_s, altitude_m)
+
+    bank_xq, r = residual.step(state.bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
+    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
+    band, bp = decision.excitation_step(state.band, u_c, loe.pole, bank.k0[0], dt_s)
+    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
+    iota = decision.signature(theta, theta_u, loe.tau)
+    excited = theta_u >= loe.excitation_floor
+    detected = decision.decode(iota, excited)
+
+    stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
+    stall_xi, theta_stall = evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s)
+    iota_stall = decision.threshold(theta_stall, stl.tau)
+    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s)
+    model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
+
+    new = FddState(bank_xq, bank_xi, band, band_xi, stall_xq, stall_xi, signal, model)
+    return new, FddOutputs(r, theta, theta_u, excited, iota, detected, r_stall, theta_stall, iota_stall, eta_signal,
+                           eta_model, theta_sl)
