@@ -1,0 +1,529 @@
+"""The FDD layer against independent references.
+
+Exact ZOH samples and scipy ``solve_ivp`` trajectories of the first-order LPV models, scipy.signal
+(``lsim``, ``cont2discrete``/``dlsim``) responses of the paper's transfer functions, python-control
+H-inf norms, the convolution integral (13), plain Python loops for the grid reductions, and
+hand-made traces for the decision and stall-identification logic. Float64 (conftest).
+"""
+
+import math
+
+import control
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.signal as sig
+from scipy.integrate import solve_ivp
+from scipy.optimize import minimize_scalar
+
+from mcfdd import io
+from mcfdd.config import FddConfig
+from mcfdd.fdd import decision, evaluator, lpv, residual, stall, system, thresholds
+
+DT_S = 0.01
+R_ARM_M = 0.0525
+DEG_M = math.radians(1.0) * R_ARM_M  # rod travel (m) of one degree of surface deflection
+VCAS_M_S, ALT_M = 150.0, 8000.0  # off the normalisation reference, so every affine term acts
+
+
+@pytest.fixture(scope="module")
+def bank():
+    return lpv.from_dict(io.load_bank_dict(), dtype=np.float64)[0]
+
+
+def eq4_gains(bank, vcas_m_s, altitude_m):
+    """Eq. (4) written out in numpy at one flight point: a function (x, s) -> gains of all models."""
+    nm = bank.norm
+    p = np.array([1.0, (vcas_m_s - nm.vcas_ref_m_s) / nm.vcas_scale_m_s,
+                  (altitude_m - nm.altitude_ref_m) / nm.altitude_scale_m])
+    c = np.asarray(bank.coef) @ p  # (N, 4): C0..C3
+    return lambda x, s: c[:, 0] + c[:, 1] * s + x / nm.x_scale_m * (c[:, 2] + c[:, 3] * s)
+
+
+def lpv_plant(gain, model, u_c, u0):
+    """Exact samples of x' = k(u_c - x) for u_c held and k frozen over each sample at its start.
+
+    ``gain(x, s)`` gives the gains of all models; returns u (n+1,) of ``model`` and the gains (n, N)
+    every model takes along that trajectory with s = sgn(u_c - u), as the on-board filters see them.
+    """
+    u, ks = [u0], []
+    for c in u_c:
+        k = gain(u[-1], np.sign(c - u[-1]))
+        phi = math.exp(-k[model] * DT_S)
+        u.append(phi * u[-1] + (1.0 - phi) * c)
+        ks.append(k)
+    return np.array(u), np.array(ks)
+
+
+def smooth_command(n, offset_deg=15.0):
+    """A ZOH command at large deflection that keeps moving: two sines, rod units."""
+    t = np.arange(n) * DT_S
+    return (offset_deg + 6.0 * np.sin(2 * np.pi * 0.7 * t) + 3.0 * np.sin(2 * np.pi * 1.9 * t)) * DEG_M
+
+
+@jax.jit
+def run_residual(x_q0, u, u_c, k, k0, a):
+    """residual.step scanned over samples; u, u_c (n,), k (n, ...) -> r (n, ...)."""
+    def body(x_q, inp):
+        u_n, u_c_n, k_n = inp
+        return residual.step(x_q, u_n, u_c_n, k_n, k0, a, DT_S)
+    return jax.lax.scan(body, x_q0, (u, u_c, k))[1]
+
+
+@jax.jit
+def run_evaluator(params, r):
+    """evaluator.step scanned over the leading axis of r -> theta."""
+    return jax.lax.scan(lambda xi, r_n: evaluator.step(params, xi, r_n, DT_S), jnp.zeros_like(r[0]), r)[1]
+
+
+def zoh_response(num, den, x):
+    """ZOH discretisation (scipy cont2discrete) of num/den applied to the held samples x, from rest."""
+    return sig.dlsim(sig.cont2discrete(sig.tf2ss(num, den), DT_S, method="zoh"), x)[1][:, 0]
+
+
+# ---------------------------------------------------------------------------------------------
+# LPV gains
+
+
+def test_gains_match_eq4(bank):
+    """lpv.gains against eq. (4) written out, over deflections, both directions, off-reference p."""
+    ref = eq4_gains(bank, VCAS_M_S, ALT_M)
+    for x in (-0.02, 0.0, 0.013):
+        for s in (-1.0, 0.0, 1.0):
+            np.testing.assert_allclose(lpv.gains(bank, x, s, VCAS_M_S, ALT_M), ref(x, s), rtol=1e-14)
+
+
+# ---------------------------------------------------------------------------------------------
+# Residual generators, eqs. (20)/(24)
+
+
+FROZEN_K = np.array([24.0, 17.0, 11.0])
+
+
+@pytest.mark.parametrize("scheduled", [False, True], ids=["frozen", "scheduled"])
+@pytest.mark.parametrize("model", [0, 1, 2])
+def test_residual_decays_on_its_own_model(bank, scheduled, model):
+    """On the ZOH-sampled model i, r_i(n+1) = exp(-aT) r_i(n) to 1e-12 (relative to max|u_c|).
+
+    Exact up to rounding for this discretisation, for frozen and for time-varying k_n (LPV bank,
+    s = sgn(u_c - u), x = u), from a random filter state. The other filters j see the continuous
+    residual a/(s+a) [(k_i - k_j)/k0_j (u_c - u)] (from (24) with u' = k_i (u_c - u)); while u_c
+    moves their theta stays within a factor 2 of that prediction's (the O(kT) discretisation
+    error is about 15 %) and at least 100 times filter i's.
+    """
+    n, a = 600, 4.0
+    u_c = smooth_command(n)
+    if scheduled:
+        gain, k0 = eq4_gains(bank, VCAS_M_S, ALT_M), np.asarray(bank.k0)
+    else:
+        gain, k0 = (lambda x, s: FROZEN_K), FROZEN_K
+    u, k = lpv_plant(gain, model, u_c, u_c[0])
+    x_q0 = np.random.default_rng(model).normal(0.0, 0.01, k0.shape)
+    r = np.asarray(run_residual(x_q0, u[:-1], u_c, k, k0, a))
+
+    own = r[:, model]
+    assert np.abs(own[0]) > 1e-4
+    assert np.max(np.abs(own[1:] - math.exp(-a * DT_S) * own[:-1])) <= 1e-12 * np.max(np.abs(u_c))
+    assert np.abs(own[-1]) < 1e-9
+
+    drive = (k[:, [model]] - k) / k0 * (u_c - u[:-1])[:, None]
+    predicted = np.stack([zoh_response([a], [1.0, a], drive[:, j]) for j in range(k0.size)], axis=1)
+    params = evaluator.NarendraParams(0.0, 1.0, a)
+    theta, theta_ref = np.asarray(run_evaluator(params, r)), np.asarray(run_evaluator(params, predicted))
+    moving = slice(300, None)  # after 3 s: the initial filter state has decayed
+    others = [j for j in range(k0.size) if j != model]
+    ratio = theta[moving, others] / theta_ref[moving, others]
+    assert np.all((ratio >= 0.5) & (ratio <= 2.0))
+    assert np.all(theta_ref[moving, others] >= 100.0 * theta[moving, [model]])
+
+
+@pytest.mark.parametrize("model", [0, 4])
+def test_residual_on_continuous_lpv_plant(bank, model):
+    """Continuous plant x' = k(x, s)(u_c - x) by solve_ivp, u_c held: |r_i| <= the O(T) bound.
+
+    Over a sample s is constant and k affine in x, k = k_n + k_x (x - u_n), with x between u_n and
+    the next sample, so the sample's defect against the frozen-k ZOH step the filter assumes is
+    |d_n| <= |u_c - u_n| |int (k - k_n) dt| <= |k_x| k_max |u_c - u_n|^2 T^2 / 2. The residual obeys
+    r(n+1) = exp(-aT) r(n) + c d_n with c = (1 - exp(-aT)) / (1 - exp(-k0 T)), hence
+    |r_i| <= max|d| / (1 - exp(-k0_i T)) = O(T). The mismatched filters stay far above it.
+    """
+    n, a = 300, 10.0
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u_c = smooth_command(n)
+    u, k, bound = [u_c[0]], [], []
+    for c in u_c:
+        s = np.sign(c - u[-1])
+        sol = solve_ivp(lambda t, x, c, s: gain(x[0], s)[model] * (c - x), (0.0, DT_S), [u[-1]], args=(c, s),
+                        method="DOP853", rtol=1e-12, atol=1e-16)
+        k_ends = [gain(x, s)[model] for x in (u[-1], sol.y[0, -1])]
+        k_x = abs(gain(1.0, s)[model] - gain(0.0, s)[model])
+        bound.append(k_x * max(k_ends) * (c - u[-1]) ** 2 * DT_S ** 2 / 2.0)
+        k.append(gain(u[-1], s))
+        u.append(sol.y[0, -1])
+    k0 = np.asarray(bank.k0)
+    r = np.abs(np.asarray(run_residual(-u_c[0] * np.ones_like(k0), np.array(u[:-1]), u_c, np.array(k), k0, a)))
+    limit = max(bound) / (1.0 - math.exp(-k0[model] * DT_S)) + 1e-12
+    assert r[:, model].max() <= limit
+    others = [j for j in range(k0.size) if j != model]
+    assert r[100:, others].max(axis=0).min() > 10.0 * limit
+
+
+@pytest.mark.parametrize("k, k_j", [(24.0, 24.0), (24.0, 18.0), (24.0, 30.0), (12.0, 20.0)])
+def test_frozen_filter_matches_transfer_function(k, k_j):
+    """Filter with frozen rho against scipy lsim of (20) cascaded with the plant k_j/(s+k_j).
+
+    u_c is held per sample and u is the exact response of gain k_j to it, so the continuous filter
+    driven by the continuous u(t) and held u_c(t) is the exact ZOH response (lsim, interp=False) of
+    Q(s) [G_j; 1], connected in state space by python-control. Both obey, per sample,
+    r+ = exp(-aT) r + g (u_c - u_n) with our g_d = c (e^{-kT} - e^{-k_j T}) and the exact
+    g_c = (a/k0)(k_j - k)(e^{-k_j T} - e^{-aT})/(a - k_j), both (a/k0)(k_j - k) T (1 + O(T)); so |r_d - r_c| <= |g_d - g_c| max|u_c - u| / (1 - e^{-aT}),
+    which is O(|k_j - k| T) max|u_c - u| and 0 (up to rounding) for k_j = k.
+    """
+    k0, a, n = 20.0, 3.0, 400
+    u_c = np.cumsum(np.random.default_rng(1).normal(0.0, 2e-4, n))
+    u, _ = lpv_plant(lambda x, s: np.array([k_j]), 0, u_c, 0.0)
+    r_d = np.asarray(run_residual(jnp.asarray(0.0), u[:-1], u_c, np.full(n, k), k0, a))
+
+    (n_u, d_u), (n_c, d_c) = residual.transfer_function(k, k0, a)
+    np.testing.assert_allclose(np.concatenate([n_u, d_u, n_c, d_c]),
+                               [a / k0, a * k / k0, 1.0, a, -a * k / k0, 1.0, a], rtol=1e-15)  # eq. (20)
+    cascade = (control.ss(control.tf(n_u, d_u)) * control.ss(control.tf([k_j], [1.0, k_j]))
+               + control.ss(control.tf(n_c, d_c)))  # state-space connection: no polynomial cancellation
+    t = np.arange(n) * DT_S
+    r_c = sig.lsim((cascade.A, cascade.B, cascade.C, cascade.D), u_c, t, interp=False)[1]
+
+    g_d = (1 - math.exp(-a * DT_S)) / (1 - math.exp(-k0 * DT_S)) * (math.exp(-k * DT_S) - math.exp(-k_j * DT_S))
+    g_c = a / k0 * (k_j - k) * (math.exp(-k_j * DT_S) - math.exp(-a * DT_S)) / (a - k_j)
+    tol = abs(g_d - g_c) * np.max(np.abs(u_c - u[:-1])) / (1 - math.exp(-a * DT_S)) + 1e-13
+    assert tol <= abs(k_j - k) * DT_S * np.max(np.abs(u_c - u[:-1])) + 1e-13
+    np.testing.assert_allclose(r_d, r_c, rtol=0, atol=tol)
+    if k_j != k:
+        assert np.max(np.abs(r_c)) > 10 * tol
+
+
+@pytest.mark.parametrize("k", [20.0, 14.0, 27.0])
+def test_additive_fault_response(k):
+    """Issue 5: on u = G (u_c + f) the detector gives r = (k/k0) a/(s+a) f, u_c decoupled.
+
+    Reference: ZOH of (k/k0) a/(s+a) (cont2discrete + dlsim) on f. Ours has the same pole and gain
+    (1 - e^{-aT})(1 - e^{-kT})/(1 - e^{-k0 T}), i.e. the reference times h(kT)/h(k0T) with
+    h(x) = (1 - e^{-x})/x; |h'| <= 1/2, so |r - r_ref| <= |k - k0| T / (2 h(k0 T)) |r_ref|: exact for k = k0.
+    """
+    k0, a, n = 20.0, 10.0, 400
+    rng = np.random.default_rng(2)
+    u_c = np.cumsum(rng.normal(0.0, 5e-4, n))
+    t = np.arange(n) * DT_S
+    f = np.where(t >= 1.0, 2e-3, 0.0) + np.where(t >= 2.5, 4e-3 * (t - 2.5), 0.0)
+    u, _ = lpv_plant(lambda x, s: np.array([k]), 0, u_c + f, 0.0)
+    r = np.asarray(run_residual(jnp.asarray(0.0), u[:-1], u_c, np.full(n, k), k0, a))
+    r_ref = zoh_response([k / k0 * a], [1.0, a], f)
+
+    h_k0 = -math.expm1(-k0 * DT_S) / (k0 * DT_S)
+    rel = abs(k - k0) * DT_S / (2 * h_k0)
+    assert np.all(np.abs(r - r_ref) <= rel * np.abs(r_ref) + 1e-14)
+    assert np.max(np.abs(r_ref)) > 1e-3
+
+
+# ---------------------------------------------------------------------------------------------
+# Thresholds, eq. (16)
+
+
+@pytest.mark.parametrize("k_i, k_j", [(25.0, 20.0), (24.3, 10.8), (5.0, 30.0), (16.0, 16.5)])
+def test_hinf_distance_against_python_control(k_i, k_j):
+    """||G_j - G_i||_inf and its peak frequency against python-control.
+
+    ``control.norm(p='inf')`` (slycot absent: its scipy Hamiltonian bisection, tol 1e-6), and a
+    dense log sweep of the frequency response refined by scipy's bounded scalar minimisation.
+    """
+    diff = control.tf([k_j], [1, k_j]) - control.tf([k_i], [1, k_i])
+    dist = float(thresholds.hinf_distance(k_i, k_j))
+    w_peak = float(thresholds.peak_frequency(k_i, k_j))
+    assert dist == pytest.approx(control.norm(diff, p="inf"), rel=1e-5)
+
+    w = np.logspace(-2, 4, 20001)
+    mag = np.abs(diff(1j * w))
+    assert mag.max() <= dist * (1 + 1e-12)
+    i = int(np.argmax(mag))
+    best = minimize_scalar(lambda lw: -abs(diff(1j * 10.0 ** lw)), bounds=(math.log10(w[i - 1]), math.log10(w[i + 1])),
+                           method="bounded", options={"xatol": 1e-10})
+    assert -best.fun == pytest.approx(dist, rel=1e-12)
+    assert 10.0 ** best.x == pytest.approx(w_peak, rel=1e-4)
+
+
+def test_grid_distances_and_thresholds_match_a_loop(bank):
+    """pairwise_distances, minimum_distances (with a mask) and eq. (16) against plain loops."""
+    vcas, alt, xs = [80.0, 130.0, 220.0], [0.0, 6000.0, 11000.0], [-0.02, 0.0, 0.011, 0.0229]
+    mask = np.ones((3, 3, 4, 2), bool)
+    mask[2, 0] = False  # e.g. a (Vcas, h) corner outside the envelope
+    d = np.asarray(thresholds.pairwise_distances(bank, jnp.array(vcas), jnp.array(alt), jnp.array(xs)))
+    d_min = np.asarray(thresholds.minimum_distances(d, jnp.asarray(mask)))
+    tau = np.asarray(thresholds.thresholds(jnp.asarray(d_min)))
+
+    n = bank.k0.shape[0]
+    ref_d, ref = np.empty_like(d), np.full((n, n), np.inf)
+    for iv, v in enumerate(vcas):
+        for ih, h in enumerate(alt):
+            gain = eq4_gains(bank, v, h)
+            for ix, x in enumerate(xs):
+                for isg, s in enumerate((-1.0, 1.0)):
+                    k = gain(x, s)
+                    for i in range(n):
+                        for j in range(n):
+                            dij = abs(k[j] - k[i]) / (k[i] + k[j])
+                            ref_d[i, j, iv, ih, ix, isg] = dij
+                            if mask[iv, ih, ix, isg]:
+                                ref[i, j] = min(ref[i, j], dij)
+    np.testing.assert_allclose(d, ref_d, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(d_min, ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(tau, [min(ref[i, j] for j in range(n) if j != i) for i in range(n)], rtol=1e-12)
+    assert np.all(tau > 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Narendra evaluator, eqs. (13)-(14)
+
+
+def narendra_integral(alpha, beta, gamma, r):
+    """Eq. (13) at the sample instants for |r| held over each sample: the convolution summed exactly."""
+    mag = np.abs(r)
+    t = np.arange(len(r)) * DT_S
+    weight = -math.expm1(-gamma * DT_S) / gamma  # int over one sample of e^{-gamma (t_{m+1} - tau)}
+    theta = []
+    for n in range(len(r)):
+        theta.append(alpha * mag[n] + beta * weight * np.sum(np.exp(-gamma * (t[n] - t[1:n + 1])) * mag[:n]))
+    return np.array(theta)
+
+
+@pytest.mark.parametrize("alpha, beta, gamma", [(0.0, 1.0, 0.1), (1.0, 1.0, 0.1), (0.3, 10.0, 10.0)])
+def test_evaluator_matches_eq13(alpha, beta, gamma):
+    """Discrete theta equals the exact integral (13) at the sample instants, |r| piecewise constant."""
+    r = np.random.default_rng(3).normal(0.0, 1.0, 300)
+    theta = np.asarray(run_evaluator(evaluator.NarendraParams(alpha, beta, gamma), r))
+    np.testing.assert_allclose(theta, narendra_integral(alpha, beta, gamma, r), rtol=1e-12, atol=1e-14)
+
+
+def test_evaluator_solve_ivp():
+    """One case of (14) integrated by solve_ivp (tight tolerances), sample by sample."""
+    alpha, beta, gamma = 0.5, 2.0, 3.0
+    r = np.random.default_rng(4).normal(0.0, 1.0, 50)
+    xi, ref = 0.0, []
+    for r_n in r:
+        ref.append(xi + alpha * abs(r_n))
+        xi = solve_ivp(lambda t, y, m: -gamma * y + beta * m, (0.0, DT_S), [xi], args=(abs(r_n),),
+                       rtol=1e-12, atol=1e-15).y[0, -1]
+    theta = np.asarray(run_evaluator(evaluator.NarendraParams(alpha, beta, gamma), r))
+    np.testing.assert_allclose(theta, ref, rtol=1e-10, atol=1e-13)
+
+
+def test_evaluator_parameters_each_matter():
+    """alpha adds (d alpha)|r|, beta scales xi, gamma sets the level beta R / gamma for |r| = R."""
+    r = np.random.default_rng(5).normal(0.0, 1.0, 200)
+    base = evaluator.NarendraParams(0.5, 1.0, 2.0)
+    theta = np.asarray(run_evaluator(base, r))
+    more_alpha = np.asarray(run_evaluator(base._replace(alpha=1.5), r))
+    np.testing.assert_allclose(more_alpha - theta, np.abs(r), rtol=1e-12)
+    more_beta = np.asarray(run_evaluator(base._replace(beta=3.0), r))
+    np.testing.assert_allclose(more_beta - 0.5 * np.abs(r), 3.0 * (theta - 0.5 * np.abs(r)), rtol=1e-12, atol=1e-15)
+
+    t = np.arange(2000) * DT_S
+    for gamma in (0.5, 2.0):
+        xi = np.asarray(run_evaluator(evaluator.NarendraParams(0.0, 1.0, gamma), np.full(t.size, 0.2)))
+        np.testing.assert_allclose(xi, 0.2 / gamma * -np.expm1(-gamma * t), rtol=1e-12, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------
+# Decisions, eqs. (15) and (25)
+
+
+def test_excitation_band_pass_is_zoh_cascade():
+    """excitation_step = ZOH of a/(s+a), then ZOH of s/(s+k0) on the held low-pass, to 1e-12."""
+    a, k0, u_c0 = 1.5, 24.0, 0.01
+    u_c = u_c0 + np.cumsum(np.random.default_rng(6).normal(0.0, 1e-3, 500))
+
+    def body(state, c):
+        return decision.excitation_step(state, c, a, k0, DT_S)
+
+    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(u_c0), x)[1])(u_c))
+    low = zoh_response([a], [1.0, a], u_c - u_c0)  # at rest at u_c0: deviations start from zero
+    ref = zoh_response([1.0, 0.0], [1.0, k0], low)
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c)))
+    assert np.max(np.abs(ref)) > 0.01 * np.ptp(u_c)
+
+
+@pytest.mark.parametrize("iota, excited, expected", [
+    ([1, 1, 0, 1], True, 2),
+    ([0, 1, 1, 1], True, 0),
+    ([1, 1, 1, 0], True, 3),
+    ([1, 1, 1, 1], True, -1),
+    ([0, 0, 0, 0], True, -1),
+    ([1, 0, 1, 0], True, -1),
+    ([1, 1, 0, 1], False, -1),
+])
+def test_decode(iota, excited, expected):
+    """Only a signature with exactly one zero decodes (to its index), and only while excited."""
+    got = decision.decode(jnp.array(iota, bool), jnp.asarray(excited))
+    assert int(got) == expected and got.dtype == jnp.int32
+
+
+def test_signature_and_threshold_direction():
+    """Eq. (15): iota_i = 1 iff theta_i >= tau_i ||u|| (equality fires); eq. (25) likewise."""
+    theta = jnp.array([0.0, 0.2, 0.3, 0.5])
+    iota = decision.signature(theta, 2.0, jnp.array([0.1, 0.1, 0.2, 0.2]))
+    assert iota.tolist() == [False, True, False, True]
+    assert decision.signature(theta, 2.0, 0.1).tolist() == [False, True, True, True]
+    assert decision.threshold(theta, 0.3).tolist() == [False, False, True, True]
+
+
+# ---------------------------------------------------------------------------------------------
+# Stall identification, Section 5.4
+
+
+RULES = stall.SignalRules(rate_min_m_s=2.0 * DEG_M, command_min_m=10.0 * DEG_M, position_min_m=8.0 * DEG_M,
+                          window_s=0.1)
+
+
+@jax.jit
+def run_signal(rules, iota, u_c, u):
+    """stall.signal_step over a trace (n,) sampled at DT_S -> eta (n,)."""
+    t = jnp.arange(iota.shape[0]) * DT_S
+
+    def body(state, inp):
+        return stall.signal_step(rules, state, *inp)
+    return jax.lax.scan(body, stall.signal_init(u[0]), (iota, u_c, u, t))[1]
+
+
+def held(n, value_deg):
+    return np.full(n, value_deg * DEG_M)
+
+
+N_TRACE, ONSET = 100, 20
+IOTA = np.arange(N_TRACE) >= ONSET
+
+
+@pytest.mark.parametrize("u_deg, u_c_deg, identified", [
+    (15.0, 20.0, True),  # stuck at large deflection, command beyond
+    (-15.0, -20.0, True),  # the same on the other side
+    (5.0, 20.0, False),  # (34): |u| small
+    (9.0, 9.5, False),  # (34): |u_c| small (|u| large enough)
+    (1.0, 3.0, False),  # jam at small deflection: never a stall
+    (15.0, 12.0, False),  # (35): command inside the position
+    (15.0, -20.0, False),  # (35): command on the other side
+])
+def test_signal_rules_on_a_stuck_rod(u_deg, u_c_deg, identified):
+    """Rod held still, iota rising at ONSET: eta = 1 from the next sample iff (34) and (35) hold."""
+    eta = np.asarray(run_signal(RULES, IOTA, held(N_TRACE, u_c_deg), held(N_TRACE, u_deg)))
+    assert not eta[:ONSET + 1].any()
+    assert eta[ONSET + 1:].all() if identified else not eta.any()
+
+
+def test_signal_rules_moving_rod_and_no_detection():
+    """(33): a rod moving faster than rate_min gives eta = 0; and eta = 0 whenever iota = 0."""
+    t = np.arange(N_TRACE) * DT_S
+    u = (15.0 + 5.0 * t) * DEG_M  # 5 deg/s > rate_min
+    assert not np.asarray(run_signal(RULES, IOTA, u + 5.0 * DEG_M, u)).any()
+
+    stuck, beyond = held(N_TRACE, 15.0), held(N_TRACE, 20.0)
+    assert not np.asarray(run_signal(RULES, np.zeros(N_TRACE, bool), beyond, stuck)).any()
+    iota = np.random.default_rng(7).random(N_TRACE) < 0.7
+    eta = np.asarray(run_signal(RULES, iota, beyond, stuck))
+    assert eta.any() and not (eta & ~iota).any()
+
+
+def test_signal_rules_second_stall_in_one_alarm():
+    """A later stall in the same iota = 1 episode is identified from a re-anchored mean rate.
+
+    Stuck at 15 deg until 1 s, moving at 10 deg/s to 20 deg at 1.5 s, stuck after. The mean rate
+    from t_d = 0.1 s would stay above rate_min until 2.6 s; re-anchoring (every window while moving)
+    gives eta = 1 within two windows and a sample of the stop.
+    """
+    n = 300
+    t = np.arange(n) * DT_S
+    u = np.clip(15.0 + 10.0 * (t - 1.0), 15.0, 20.0) * DEG_M
+    iota = np.arange(n) >= 10
+    eta = np.asarray(run_signal(RULES, iota, held(n, 25.0), u))
+    assert eta[11:100].all()  # first stall
+    assert not eta[(t >= 1.3) & (t < 1.5)].any()  # moving
+    second = t >= 1.5 + 2 * RULES.window_s + DT_S
+    assert eta[second].all()
+    first = np.argmax(second)
+    assert abs(u[first] - u[10]) / (t[first] - t[10]) > RULES.rate_min_m_s  # premise: no eta without re-anchoring
+
+
+MODEL_RULE = stall.ModelRule(k_sl=0.05, pole=5.0, evaluator=evaluator.NarendraParams(0.0, 10.0, 10.0),
+                             tau=1.0 * DEG_M)
+
+
+@jax.jit
+def run_model_rule(iota, u_c, u):
+    """stall.model_step over a trace -> (eta, theta_sl)."""
+    def body(state, inp):
+        state, eta, _, theta_sl = stall.model_step(MODEL_RULE, RULES, state, *inp, DT_S)
+        return state, (eta, theta_sl)
+    return jax.lax.scan(body, stall.model_init(u[0]), (iota, u_c, u))[1]
+
+
+@pytest.mark.parametrize("k", [MODEL_RULE.k_sl, 25.0])
+def test_model_rule(k):
+    """(a): theta_sl stays below tau_sl on a rod following the stall model (its residual is zero
+    from rest, as for any own model), far above on a normally moving rod; eta requires iota."""
+    n = 200
+    u_c = smooth_command(n, offset_deg=25.0)  # 16..34 deg: beyond the rod, which starts at 12 deg
+    u, _ = lpv_plant(lambda x, s: np.array([k]), 0, u_c, 12.0 * DEG_M)
+    iota = np.arange(n) >= ONSET
+    eta, theta_sl = map(np.asarray, run_model_rule(iota, u_c, u[:-1]))
+    eta_off, _ = map(np.asarray, run_model_rule(np.zeros(n, bool), u_c, u[:-1]))
+    assert not eta_off.any()
+    if k == MODEL_RULE.k_sl:
+        assert np.all(theta_sl < 1e-9 * MODEL_RULE.tau)
+        np.testing.assert_array_equal(eta, iota)
+    else:
+        assert np.all(theta_sl[20:] > 10.0 * MODEL_RULE.tau)
+        assert not eta.any()
+
+
+# ---------------------------------------------------------------------------------------------
+# The composed on-board step
+
+
+@jax.jit
+def fdd_on_lpv_model(params, model, u_c):
+    """system.step scanned over a ZOH-sampled LPV plant of bank ``model``, from rest -> detected ids."""
+    fdd_on_lpv_model.traces += 1
+    bank = params.loe.bank
+    t = jnp.arange(u_c.shape[0]) * DT_S
+
+    def body(carry, inp):
+        u, state = carry
+        c, t_n = inp
+        k = lpv.gains(bank, u, jnp.sign(c - u), VCAS_M_S, ALT_M)[model]
+        state, out = system.step(params, state, c, u, VCAS_M_S, ALT_M, t_n, DT_S)
+        phi = jnp.exp(-k * DT_S)
+        return (phi * u + (1.0 - phi) * c, state), out.detected
+
+    state0 = system.init(params, u_c[0], u_c[0])
+    return jax.lax.scan(body, (u_c[0], state0), (u_c, t))[1]
+
+
+fdd_on_lpv_model.traces = 0
+
+
+def test_system_detects_the_plant_model(bank):
+    """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
+    1 once excited. A second run with another tau does not recompile."""
+    params = FddConfig().params(bank, r_arm_m=R_ARM_M)
+    t = np.arange(1500) * DT_S
+    u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)
+    excited = t >= 5.0
+
+    healthy = np.asarray(fdd_on_lpv_model(params, 0, u_c))
+    assert healthy[0] == decision.NO_DECISION
+    assert np.isin(healthy, [0, decision.NO_DECISION]).all()
+    assert (healthy[excited] == 0).all()
+
+    disconnected = np.asarray(fdd_on_lpv_model(params, 1, u_c))
+    assert (disconnected[excited] == 1).all()
+    traces = fdd_on_lpv_model.traces
+    retuned = params._replace(loe=params.loe._replace(tau=1.5 * params.loe.tau))
+    fdd_on_lpv_model(retuned, 1, u_c).block_until_ready()
+    assert fdd_on_lpv_model.traces == traces
