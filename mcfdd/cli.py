@@ -43,25 +43,26 @@ def _load_bank(fdd_cfg: config.FddConfig, dtype):
         raise config.ConfigError(f"fdd.bank: cannot use {fdd_cfg.bank!r}: {err}") from None
 
 
-def simulate_histories(cfg: config.SimulateConfig):
-    """Run the config's runs with plant and FDD in one batch. Returns (tidy DataFrame, model names)."""
+def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_cfg: config.FddConfig, table: dict,
+              run_names):
+    """Simulate the runs of a scenario table with plant and FDD in one batch.
+
+    Returns (tidy DataFrame of time histories, LPV model names).
+    """
     import jax
 
     from mcfdd.analysis import batch, simulate
     from mcfdd.analysis.scenarios import to_scenario
     from mcfdd.plant import closed_loop
 
-    sim = cfg.simulation
     dtype = _dtype(sim.precision)
-    model = cfg.plant.model()
-    bank, names = _load_bank(cfg.fdd, dtype)
-    fdd_params = cfg.fdd.params(bank, model.actuator.r_arm_m)
-    rows = [run.columns() for run in cfg.runs]
-    table = {k: np.array([r[k] for r in rows]) for k in rows[0]}
+    model = plant_cfg.model()
+    bank, names = _load_bank(fdd_cfg, dtype)
+    fdd_params = fdd_cfg.params(bank, model.actuator.r_arm_m)
     scenarios = to_scenario(table, dtype)
     kinds = batch.kinds_in(scenarios.manoeuvre.kind)
-    keys = simulate.run_keys(sim.seed, range(len(cfg.runs)))
-    _say(f"simulating {len(cfg.runs)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})")
+    keys = simulate.run_keys(sim.seed, range(len(run_names)))
+    _say(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})")
     start = time.perf_counter()
     plant, fdd = jax.block_until_ready(
         simulate.fdd_batch(model, fdd_params, scenarios, keys, sim.n_steps, sim.dt_s, sim.substeps, kinds))
@@ -82,15 +83,19 @@ def simulate_histories(cfg: config.SimulateConfig):
         columns[f"r_{i}"] = fdd.r[..., i]
         columns[f"theta_{i}"] = fdd.theta[..., i]
         columns[f"iota_{i}"] = fdd.iota[..., i]
-    eta = fdd.eta_signal if cfg.fdd.stall.identification == "signal" else fdd.eta_model
+    eta = fdd.eta_signal if fdd_cfg.stall.identification == "signal" else fdd.eta_model
     columns.update({
-        "theta_u": fdd.theta_u, "detected_model": fdd.detected, "r_stall": fdd.r_stall,
-        "theta_stall": fdd.theta_stall, "iota_stall": fdd.iota_stall, "eta_stall": eta,
-        "eta_signal": fdd.eta_signal, "eta_model": fdd.eta_model, "theta_sl": fdd.theta_sl,
+        "theta_u": fdd.theta_u, "excited": fdd.excited, "detected_model": fdd.detected, "r_stall": fdd.r_stall,
+        "r_stall_deg": deg(fdd.r_stall), "theta_stall": fdd.theta_stall, "iota_stall": fdd.iota_stall,
+        "eta_stall": eta, "eta_signal": fdd.eta_signal, "eta_model": fdd.eta_model, "theta_sl": fdd.theta_sl,
     })
     t = np.arange(sim.n_steps) * sim.dt_s
-    df = io.history_frame([run.name for run in cfg.runs], t, {k: np.asarray(v) for k, v in columns.items()})
-    return df, names
+    return io.history_frame(list(run_names), t, {k: np.asarray(v) for k, v in columns.items()}), names
+
+
+def _runs_table(runs) -> dict:
+    rows = [run.columns() for run in runs]
+    return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
 
 def cmd_simulate(args) -> int:
@@ -99,7 +104,7 @@ def cmd_simulate(args) -> int:
     from mcfdd import plots
 
     out = Path(args.out) if args.out else io.default_out_dir("simulate", args.config)
-    df, names = simulate_histories(cfg)
+    df, names = histories(cfg.simulation, cfg.plant, cfg.fdd, _runs_table(cfg.runs), [r.name for r in cfg.runs])
     meta = io.provenance(config.to_json(cfg), cfg.simulation.seed, models=list(names))
     _say(f"wrote {io.write_table(df, out / 'timeseries.parquet', meta)}")
     dt = cfg.simulation.dt_s
@@ -256,8 +261,207 @@ def cmd_campaign(args) -> int:
     return 0
 
 
+def cmd_fit_lpv(args) -> int:
+    cfg = config.load(config.LpvFitConfig, args.config)
+    _set_precision(cfg.precision)
+    import pandas as pd
+
+    from mcfdd import plots
+    from mcfdd.analysis import lpv_fit
+    from mcfdd.fdd import lpv
+    from mcfdd.plant import atmosphere, closed_loop, manoeuvres
+
+    out = Path(args.out) if args.out else io.default_out_dir("fit-lpv", args.config)
+    dtype = _dtype(cfg.precision)
+    model = cfg.plant.model()
+    runs, opt, max_mach = cfg.runs, cfg.optimiser, cfg.plant.aircraft.max_mach
+    nus, names = cfg.nus(), [m.name for m in cfg.models]
+    r_arm = model.actuator.r_arm_m
+    points = {"training": cfg.envelope.training_points(max_mach),
+              "validation": cfg.envelope.validation_flight_points(max_mach, cfg.seed)}
+    commands, problems = {}, {}
+    start = time.perf_counter()
+    for split, (v, h) in points.items():
+        commands[split] = cfg.manoeuvre_params(split, dtype)
+        problems[split] = lpv_fit.make_problem(model, nus, v, h, commands[split], runs.n_steps, runs.dt_s,
+                                               runs.substeps)
+        _say(f"{split}: {len(v)} flight points x {len(commands[split].kind)} manoeuvres of {runs.duration_s} s, "
+             f"{len(names)} models (nonlinear actuator simulated)")
+    bank, free = lpv_fit.initial_bank(model, nus, *points["training"], cfg.exact_disconnection, dtype)
+    for i in np.flatnonzero(~free):
+        _say(f"{names[i]}: exact gain of eq. (36), {float(bank.k0[i]):.3f} 1/s, not fitted")
+
+    def progress(i, losses):
+        last = i + 1 == opt.iterations
+        if i % 10 and not last:
+            return
+        rms = " ".join(f"{100 * math.sqrt(v):.3f}" for v in losses)
+        end = "\n" if last else ""
+        print(f"\r  iteration {i + 1}/{opt.iterations}  training RMS error (% of amplitude): {rms}   ", end=end,
+              file=sys.stderr, flush=True)
+
+    bank, _ = lpv_fit.fit(bank, problems["training"], runs.dt_s, margin=runs.min_pressure, free=free,
+                          callback=progress, **config.to_dict(opt))
+    _say(f"fitted in {time.perf_counter() - start:.1f} s (simulation and compilation included)")
+
+    frames, summary, x_lpv = [], {}, {}
+    for split, problem in problems.items():
+        x_lpv[split] = lpv_fit.responses(bank, problem, runs.dt_s)
+        rms, max_error = lpv_fit.output_errors(x_lpv[split], problem)
+        domain = lpv_fit.in_domain(problem, runs.min_pressure)
+        summary[split] = lpv_fit.error_summary(rms, max_error, domain)
+        n_commands = len(commands[split].kind)
+        v, h = points[split]
+        run_columns = {
+            "split": np.full(len(v) * n_commands, split), "run": np.arange(len(v) * n_commands),
+            "vcas_kt": np.repeat(v / atmosphere.KT_TO_M_S, n_commands), "altitude_m": np.repeat(h, n_commands),
+            "manoeuvre": np.tile(np.asarray(manoeuvres.KINDS)[np.asarray(commands[split].kind)], len(v)),
+            "amplitude": np.tile(np.asarray(commands[split].amplitude), len(v)),
+            "amplitude_deg": closed_loop.deflection_deg(np.asarray(problem.amplitude_m), r_arm),
+        }
+        frames.append(io.model_run_frame(names, run_columns, {
+            "rms_error_pct": 100.0 * np.asarray(rms), "max_error_pct": 100.0 * np.asarray(max_error),
+            "min_available_pressure": np.asarray(problem.min_pressure), "in_domain": np.asarray(domain)}))
+    errors = pd.concat(frames, ignore_index=True)
+
+    x_max = lpv_fit.stroke_m(model)
+    v_grid = np.linspace(*cfg.envelope.vcas_kt, 26) * atmosphere.KT_TO_M_S
+    h_grid = np.linspace(*cfg.envelope.altitude_m, 25)
+    distances = lpv_fit.neighbour_distances(bank, model, v_grid, h_grid, np.linspace(-x_max, x_max, 51), max_mach,
+                                            runs.min_pressure)
+    meta = io.provenance(config.to_json(cfg), cfg.seed, models=names)
+    fit_info = {
+        "method": "output error against the nonlinear actuator (Adam, exponentially decaying step), started from a "
+                  "least-squares match of the small-error gains; mcfdd.analysis.lpv_fit",
+        "command": f"mcfdd fit-lpv {args.config}",
+        "config": config.to_dict(cfg),
+        "version": meta["version"],
+        "git_revision": meta["git_revision"],
+        "exact_gain_models": [names[i] for i in np.flatnonzero(~free)],
+        "errors_pct_of_amplitude": {
+            name: {split: {"rms": 100.0 * float(s["rms"][i]), "max": 100.0 * float(s["max"][i]),
+                           "runs": int(s["runs"][i]), "near_stall_runs": int(s["near_stall_runs"][i])}
+                   for split, s in summary.items()}
+            for i, name in enumerate(names)},
+        "neighbour_distances": [{"models": [names[d.i], names[d.j]], "overall": d.overall, "separated": d.separated,
+                                 "nonlinear_at_separated": d.nonlinear} for d in distances],
+    }
+    _say(f"wrote {io.save_bank(out / 'bank.json', lpv.to_dict(bank, names, {'fit': fit_info}))}")
+    _say(f"wrote {io.write_table(errors, out / 'fit_errors.parquet', meta)}")
+
+    problem, m = problems["validation"], commands["validation"]
+    idx = np.asarray(lpv_fit.showcase_runs(problem, x_lpv["validation"], runs.min_pressure, len(m.kind)))
+    labels = [f"{float(problem.vcas_m_s[b]) / atmosphere.KT_TO_M_S:.0f} kt, {float(problem.altitude_m[b]):.0f} m: "
+              f"{manoeuvres.KINDS[int(m.kind[b % len(m.kind)])]} {float(m.amplitude[b % len(m.kind)]):+.2f}"
+              for b in idx]
+
+    def deg(x):
+        return closed_loop.deflection_deg(np.asarray(x), r_arm)
+
+    columns = {"u_c_deg": deg(problem.u_c_m[idx, :]),
+               "amplitude_deg": np.repeat(deg(problem.amplitude_m[idx])[:, None], runs.n_steps, axis=1)}
+    for i in range(len(names)):
+        columns[f"x_nonlinear_deg_{i}"] = deg(problem.x_m[i, idx, :])
+        columns[f"x_lpv_deg_{i}"] = deg(x_lpv["validation"][i, idx, :])
+    history = io.history_frame(labels, np.arange(runs.n_steps) * runs.dt_s, columns)
+    _say(f"wrote {_save_figure(plots.lpv_responses(history, names), out / 'responses.png')}")
+
+    delta = 0.6 * model.actuator.max_deflection_rad
+    h_shown = h_grid[[0, len(h_grid) // 2, -1]]
+    k_lpv, k_nl = lpv_fit.gain_comparison(bank, model, v_grid, h_shown, np.array([delta * r_arm]), max_mach)
+    gains = io.grid_frame(names, {"vcas_kt": v_grid / atmosphere.KT_TO_M_S, "altitude_m": h_shown,
+                                  "delta_deg": [math.degrees(delta)], "direction": [-1.0, 1.0]},
+                          {"k_lpv_1_s": k_lpv, "k_nonlinear_1_s": k_nl})
+    _say(f"wrote {_save_figure(plots.lpv_gains(gains, names), out / 'gains.png')}")
+
+    print(f"{'model':<18s} {'k0 1/s':>7s}  {'training RMS / max %':>21s}  {'validation RMS / max %':>23s}  "
+          f"near-stall runs")
+    for i, name in enumerate(names):
+        tr, va = summary["training"], summary["validation"]
+        print(f"{name:<18s} {float(bank.k0[i]):7.3f}  {100 * tr['rms'][i]:10.3f} / {100 * tr['max'][i]:7.3f}  "
+              f"{100 * va['rms'][i]:12.3f} / {100 * va['max'][i]:7.3f}  {tr['near_stall_runs'][i]} / "
+              f"{va['near_stall_runs'][i]}")
+    print("smallest H-inf distance |k_j - k_i| / (k_i + k_j) of neighbouring models over the envelope grid")
+    print("(overall; where the nonlinear models are at least 0.01 apart and keep the pressure margin):")
+    for d in distances:
+        print(f"  {names[d.i]:>18s} - {names[d.j]:<18s} {d.overall:.4f}   {d.separated:.4f} "
+              f"(nonlinear there {d.nonlinear:.4f})")
+    return 0
+
+
 def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+
+
+def cmd_figures(args) -> int:
+    from mcfdd import plots
+    from mcfdd.analysis import metrics
+
+    folder = Path(args.configs)
+    out = Path(args.out) if args.out else Path("results") / "figures"
+    fig3_cfg = config.load(config.SimulateConfig, folder / "fig3.toml")
+    fig4_cfg = config.load(config.SweepConfig, folder / "fig4.toml")
+    fig5_cfg = config.load(config.SimulateConfig, folder / "fig5.toml")
+    precisions = {c.simulation.precision for c in (fig3_cfg, fig4_cfg, fig5_cfg)}
+    _set_precision("float64" if "float64" in precisions else "float32")
+
+    df3, _ = histories(fig3_cfg.simulation, fig3_cfg.plant, fig3_cfg.fdd, _runs_table(fig3_cfg.runs),
+                       [r.name for r in fig3_cfg.runs])
+    free = next(r for r in fig3_cfg.runs if r.fault.kind == "none")
+    faulty = next(r for r in fig3_cfg.runs if r.fault.kind != "none")
+    _say(f"wrote {_save_figure(plots.fig3(df3, free.name, faulty.name, faulty.fault.onset_s), out / 'fig3.png')}")
+
+    table, run_names, family, size = fig4_cfg.table()
+    df4, names = histories(fig4_cfg.simulation, fig4_cfg.plant, fig4_cfg.fdd, table, run_names)
+    n_steps = fig4_cfg.simulation.n_steps
+    detected = df4["detected_model"].to_numpy().reshape(len(run_names), n_steps)
+    t = df4["t_s"].to_numpy()[:n_steps]
+    onset = fig4_cfg.run.fault.onset_s
+    hist = metrics.decision_history(detected, t, np.full(len(run_names), onset))
+    import pandas as pd
+
+    sweep = pd.DataFrame({"family": family, "fault_size": size, "detected_model": hist["first_model"],
+                          "detected_model_name": [names[m] if m >= 0 else "no decision" for m in hist["first_model"]],
+                          "detection_time_s": hist["detection_time_s"] - onset, "last_model": hist["last_model"],
+                          "switches": hist["switches"]})
+    meta = io.provenance(config.to_json(fig4_cfg), fig4_cfg.simulation.seed, models=list(names))
+    _say(f"wrote {io.write_table(sweep, out / 'fig4.parquet', meta)}")
+    bank, _ = _load_bank(fig4_cfg.fdd, np.float64)
+    nu = np.asarray(bank.nu)
+    grid = {"surface": sorted(1.0 - nu[np.isclose(nu[:, 0], 1.0), 1]),
+            "leakage": sorted(1.0 - nu[np.isclose(nu[:, 1], 1.0), 0])}
+    _say(f"wrote {_save_figure(plots.fig4(sweep, names, grid), out / 'fig4.png')}")
+    for fam in ("surface", "leakage"):
+        for v in grid[fam]:
+            row = sweep[(sweep["family"] == fam)].iloc[(sweep.loc[sweep["family"] == fam, "fault_size"] - v).abs().argmin()]
+            print(f"fig4 {fam} {100 * row['fault_size']:.0f} %: first decision {row['detected_model_name']} after "
+                  f"{row['detection_time_s']:.2f} s, {row['switches']} switch(es)")
+
+    df5, _ = histories(fig5_cfg.simulation, fig5_cfg.plant, fig5_cfg.fdd, _runs_table(fig5_cfg.runs),
+                       [r.name for r in fig5_cfg.runs])
+    run5 = df5[df5["run"] == fig5_cfg.runs[0].name]
+    _say(f"wrote {_save_figure(plots.fig5(run5), out / 'fig5.png')}")
+    max_deg = fig5_cfg.plant.actuator.max_deflection_deg
+    _say(f"wrote {_save_figure(plots.fig6(run5, max_deg), out / 'fig6.png')}")
+    _report_stall_latencies(run5, fig5_cfg.simulation.dt_s)
+    return 0
+
+
+def _report_stall_latencies(run, dt_s: float):
+    """Print each stall event of a run with the latency of both identification methods."""
+    stall = run["stall"].to_numpy(dtype=bool)
+    t = run["t_s"].to_numpy()
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], stall.astype(int), [0]])))
+    outside = ~stall
+    for start, end in zip(edges[::2], edges[1::2]):
+        parts = []
+        for method in ("signal", "model"):
+            eta = run[f"eta_{method}"].to_numpy(dtype=bool)[start:end]
+            parts.append(f"{method} {t[start + eta.argmax()] - t[start]:.2f} s" if eta.any() else f"{method} none")
+        print(f"stall event {t[start]:.2f}-{t[end - 1] + dt_s:.2f} s: eta latency " + ", ".join(parts))
+    for method in ("signal", "model"):
+        false = run[f"eta_{method}"].to_numpy(dtype=bool) & outside
+        print(f"eta ({method}) outside stall events: {false.sum() * dt_s:.2f} s")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -275,17 +479,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.set_defaults(func=cmd_campaign)
+    p = sub.add_parser("fit-lpv", help="fit the LPV gain models of the fault models to the nonlinear actuator")
+    p.add_argument("config", help="TOML config, e.g. configs/lpv_aileron.toml")
+    p.add_argument("--out", help="output folder (default results/fit-lpv-<config>)")
+    p.set_defaults(func=cmd_fit_lpv)
+    p = sub.add_parser("figures", help="the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml")
+    p.add_argument("--configs", default="configs", help="folder holding fig3.toml, fig4.toml, fig5.toml")
+    p.add_argument("--out", help="output folder (default results/figures)")
+    p.set_defaults(func=cmd_figures)
     return parser
 
 
 def main(argv=None) -> int:
+    import jax
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    x64 = jax.config.jax_enable_x64
     try:
         return args.func(args)
     except config.ConfigError as err:
         print(f"mcfdd: configuration error: {err}", file=sys.stderr)
         return 2
+    finally:
+        jax.config.update("jax_enable_x64", x64)
 
 
 if __name__ == "__main__":

@@ -416,6 +416,35 @@ class SimulateConfig:
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SweepConfig:
+    """``mcfdd figures`` Fig. 4: fault-size sweeps at one flight point and manoeuvre."""
+
+    simulation: SimulationConfig = spec(SimulationConfig())
+    plant: PlantConfig = spec(PlantConfig())
+    fdd: FddConfig = spec(FddConfig())
+    run: RunConfig = spec(doc="flight point, manoeuvre and fault onset; the fault kind and size are swept")
+    surface_points: int = spec(51, lo=2, hi=1001, doc="surface-effectiveness losses from 0 to 100 %")
+    leakage_points: int = spec(31, lo=2, hi=1001, doc="pressure losses from 0 to max_leakage")
+    max_leakage: float = spec(0.3, lo=0.0, lo_open=True, hi=0.95)
+
+    def check(self, path):
+        self.plant.check_flight_point(self.run.vcas_kt, self.run.altitude_m, "run")
+
+    def table(self) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
+        """Scenario columns of both sweeps, run names, family ('surface'/'leakage') and size per run."""
+        surface = np.linspace(0.0, 1.0, self.surface_points)
+        leakage = np.linspace(0.0, self.max_leakage, self.leakage_points)
+        base = self.run.columns()
+        n = len(surface) + len(leakage)
+        table = {k: np.full(n, v) for k, v in base.items()}
+        table["fault_kind"] = np.array(["surface_damage"] * len(surface) + ["leakage"] * len(leakage))
+        table["fault_size"] = np.concatenate([surface, leakage])
+        family = np.array(["surface"] * len(surface) + ["leakage"] * len(leakage))
+        names = [f"{f}-{100 * v:.1f}pct" for f, v in zip(family, table["fault_size"])]
+        return table, names, family, table["fault_size"]
+
+
 # --------------------------------------------------------------------------------------------
 # Campaigns
 
@@ -559,7 +588,7 @@ class CampaignConfig:
         c = self.campaign
         cols, n = space.design_table(list(self.space.axes), c.scenarios, c.design, c.seed, c.grid,
                                          self.plant.aircraft.max_mach)
-        kind = np.asarray(cols.get("fault_kind", np.full(n, space.DEFAULTS["fault_kind"])))
+        kind = np.asarray(cols["fault_kind"])
         size = np.zeros(n)
         for column, fault in _SIZE_COLUMNS.items():
             if column in cols:
@@ -576,3 +605,141 @@ def load(cls, path):
         return parse(cls, data)
     except ConfigError as err:
         raise ConfigError(f"{path}: {err}") from None
+
+
+# --------------------------------------------------------------------------------------------
+# LPV fitting (``mcfdd fit-lpv``)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LpvModelConfig:
+    """One fault model nu = (nu1, nu2) of the bank."""
+
+    name: str = spec()
+    nu1: float = spec(1.0, lo=0.0, lo_open=True, hi=1.0, doc="available-pressure share (leakage: nu1 < 1)")
+    nu2: float = spec(1.0, lo=0.0, hi=1.0, doc="hinge-load share (surface damage: nu2 < 1, disconnection: 0)")
+
+
+PAPER_LPV_MODELS = tuple(LpvModelConfig(name=name, nu1=nu1, nu2=nu2) for name, (nu1, nu2) in lpv.PAPER_MODELS)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LpvEnvelopeConfig:
+    """Flight points: a training grid and held-out validation points, all below the Mach limit."""
+
+    vcas_kt: tuple[float, float] = spec((100.0, 350.0), lo=VCAS_RANGE_KT[0], hi=VCAS_RANGE_KT[1])
+    altitude_m: tuple[float, float] = spec((0.0, 12000.0), lo=ALTITUDE_RANGE_M[0], hi=ALTITUDE_RANGE_M[1])
+    grid: tuple[int, int] = spec((6, 4), lo=2, hi=100, doc="training points: Vcas x altitude grid")
+    validation_points: int = spec(8, lo=1, hi=10000, doc="validation points drawn in the envelope (Latin hypercube)")
+
+    def check(self, path):
+        for key in ("vcas_kt", "altitude_m"):
+            lo, hi = getattr(self, key)
+            if not lo < hi:
+                raise ConfigError(f"{path}.{key}: range [{lo}, {hi}] is empty")
+
+    def training_points(self, max_mach: float):
+        """Training flight points (Vcas m/s, h m), two flat arrays."""
+        from mcfdd.analysis import lpv_fit
+
+        return lpv_fit.envelope_grid(np.linspace(*self.vcas_kt, self.grid[0]) * atmosphere.KT_TO_M_S,
+                                     np.linspace(*self.altitude_m, self.grid[1]), max_mach)
+
+    def validation_flight_points(self, max_mach: float, seed: int):
+        """Held-out flight points (Vcas m/s, h m), drawn with ``seed``."""
+        axes = [space.Axis("vcas_kt", "range", lo=self.vcas_kt[0], hi=self.vcas_kt[1]),
+                space.Axis("altitude_m", "range", lo=self.altitude_m[0], hi=self.altitude_m[1])]
+        cols, _ = space.design_table(axes, self.validation_points, "lhs", seed, max_mach=max_mach)
+        return cols["vcas_kt"] * atmosphere.KT_TO_M_S, cols["altitude_m"]
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LpvRunsConfig:
+    """Open-loop runs of the nonlinear actuator alone."""
+
+    duration_s: float = spec(15.0, lo=0.0, lo_open=True, hi=600.0)
+    dt_s: float = spec(0.01, lo=1e-4, hi=0.1, doc="sample time of the flight computer and of the LPV model")
+    substeps: int = spec(4, lo=1, hi=64, doc="actuator integration sub-steps per sample")
+    both_directions: bool = spec(True, doc="fly every manoeuvre also with the opposite sign")
+    min_pressure: float = spec(0.2, lo=0.0, hi=1.0,
+                               doc="runs whose available pressure falls below this share of dP are near a stall load: "
+                                   "not fitted, reported apart")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.duration_s / self.dt_s))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LpvOptimiserConfig:
+    """Adam on the output error, step decaying exponentially over the iterations."""
+
+    iterations: int = spec(100, lo=1, hi=100000)
+    learning_rate: float = spec(0.1, lo=0.0, lo_open=True, hi=100.0, doc="first step size (1/s)")
+    final_learning_rate: float = spec(0.005, lo=0.0, lo_open=True, hi=100.0, doc="last step size (1/s)")
+
+
+_OPEN_LOOP_KINDS = tuple(k for k in manoeuvres.KINDS if k.startswith("ol_"))
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LpvFitConfig:
+    """``mcfdd fit-lpv``: LPV gain models fitted by output error to the nonlinear actuator."""
+
+    seed: int = spec(0, lo=0, doc="draws the validation flight points")
+    precision: str = spec("float64", choices=("float32", "float64"))
+    exact_disconnection: bool = spec(False, doc="models with nu2 = 0 take the exact gain of eq. (36), unfitted")
+    plant: PlantConfig = spec(PlantConfig())
+    models: tuple[LpvModelConfig, ...] = spec(PAPER_LPV_MODELS)
+    envelope: LpvEnvelopeConfig = spec(LpvEnvelopeConfig())
+    runs: LpvRunsConfig = spec(LpvRunsConfig())
+    optimiser: LpvOptimiserConfig = spec(LpvOptimiserConfig())
+    training: tuple[ManoeuvreConfig, ...] = spec()
+    validation: tuple[ManoeuvreConfig, ...] = spec()
+
+    def check(self, path):
+        if not self.models:
+            raise ConfigError("models: at least one [[models]] table is required")
+        names = [m.name for m in self.models]
+        for i, name in enumerate(names):
+            if names.index(name) != i:
+                raise ConfigError(f"models[{i}].name: {name!r} is used by models[{names.index(name)}] already")
+        for key in ("training", "validation"):
+            runs = getattr(self, key)
+            if not runs:
+                raise ConfigError(f"{key}: at least one [[{key}]] manoeuvre is required")
+            for i, m in enumerate(runs):
+                if m.kind not in _OPEN_LOOP_KINDS:
+                    raise ConfigError(f"{key}[{i}].kind: {m.kind!r} is not an open-loop command; expected one of "
+                                      f"{', '.join(_OPEN_LOOP_KINDS)}")
+                if m.amplitude == 0.0:
+                    raise ConfigError(f"{key}[{i}].amplitude: must not be 0 (errors are relative to the amplitude)")
+                end = m.t_start_s + (2.0 if m.kind == "ol_doublet" else 1.0) * m.duration_s
+                if end > self.runs.duration_s:
+                    raise ConfigError(f"{key}[{i}]: ends at {end} s, after runs.duration_s = {self.runs.duration_s}")
+        if self.optimiser.final_learning_rate > self.optimiser.learning_rate:
+            raise ConfigError("optimiser.final_learning_rate: must not exceed optimiser.learning_rate")
+        v, _ = self.envelope.training_points(self.plant.aircraft.max_mach)
+        if len(v) < 3:
+            raise ConfigError(f"envelope: only {len(v)} training grid point(s) are below the Mach limit "
+                              f"plant.aircraft.max_mach = {self.plant.aircraft.max_mach}; at least 3 are needed")
+
+    def nus(self) -> np.ndarray:
+        """Fault parameters (N, 2) of the models."""
+        return np.array([(m.nu1, m.nu2) for m in self.models])
+
+    def manoeuvres(self, split: str) -> list[ManoeuvreConfig]:
+        """Manoeuvres of ``split`` ('training' or 'validation'), mirrored if runs.both_directions."""
+        listed = list(getattr(self, split))
+        if self.runs.both_directions:
+            listed += [dataclasses.replace(m, amplitude=-m.amplitude) for m in listed]
+        return listed
+
+    def manoeuvre_params(self, split: str, dtype=np.float64) -> manoeuvres.ManoeuvreParams:
+        """The manoeuvres of :meth:`manoeuvres` as one pytree with a leading axis, SI units."""
+        listed = self.manoeuvres(split)
+        cols = {"manoeuvre_kind": np.array([m.kind for m in listed])}
+        for field in dataclasses.fields(ManoeuvreConfig):
+            if field.name != "kind":
+                cols[field.name] = np.array([getattr(m, field.name) for m in listed])
+        return space.to_scenario(cols, dtype).manoeuvre

@@ -98,3 +98,28 @@ def load_bank_dict(path=None) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such LPV bank file")
     return json.loads(path.read_text())
+
+
+def model_run_frame(model_names, runs: dict, per_model: dict) -> pd.DataFrame:
+    """Tidy table of per-model results on B runs: one row per (model, run), models outermost.
+
+    ``runs`` maps column names to (B,) arrays describing the runs, ``per_model`` to (N, B) arrays.
+    """
+    n_models = len(model_names)
+    n_runs = len(next(iter(runs.values())))
+    data = {"model": np.repeat(np.asarray(model_names, dtype=object), n_runs)}
+    data.update({name: np.tile(np.asarray(values), n_models) for name, values in runs.items()})
+    data.update({name: np.asarray(values).reshape(n_models * n_runs) for name, values in per_model.items()})
+    return pd.DataFrame(data)
+
+
+def grid_frame(model_names, axes: dict, values: dict) -> pd.DataFrame:
+    """Tidy table of per-model values on a grid: one row per (model, grid point).
+
+    ``axes`` maps column names to 1-D grids in order, ``values`` to arrays of shape
+    (N, *grid shape).
+    """
+    mesh = np.meshgrid(*[np.asarray(a) for a in axes.values()], indexing="ij")
+    runs = {name: m.ravel() for name, m in zip(axes, mesh)}
+    return model_run_frame(model_names, runs, {k: np.asarray(v).reshape(len(model_names), -1)
+                                               for k, v in values.items()})

@@ -67,7 +67,7 @@ def detection_times(df: pd.DataFrame, classes: pd.Series) -> Figure:
     ax = fig.subplots()
     data = [df.loc[detected & (classes == c), "detection_latency_s"].to_numpy() for c in labels]
     if data:
-        ax.boxplot(data, vert=False, tick_labels=labels, whis=(0, 95))
+        ax.boxplot(data, orientation="horizontal", tick_labels=labels, whis=(0, 95))
     ax.set_xlabel("detection time after fault onset (s); whiskers: min and 95th percentile")
     ax.grid(alpha=0.3)
     return fig
@@ -85,4 +85,149 @@ def confusion_matrix(conf: pd.DataFrame) -> Figure:
         ax.text(j, i, str(v), ha="center", va="center", color="white" if v > values.max() / 2 else "black")
     ax.set_xlabel("decided model")
     ax.set_ylabel("true (nearest) model")
+    return fig
+
+
+def lpv_responses(df: pd.DataFrame, model_names) -> Figure:
+    """Nonlinear actuator against its LPV models on a few runs (``mcfdd fit-lpv``).
+
+    ``df`` is a time-history table (:func:`mcfdd.io.history_frame`) with columns ``u_c_deg``,
+    ``amplitude_deg`` and, for model i, ``x_nonlinear_deg_i`` and ``x_lpv_deg_i``. Left: command
+    and responses (nonlinear solid, LPV dashed); right: LPV minus nonlinear in percent of the
+    run's amplitude.
+    """
+    runs = list(dict.fromkeys(df["run"]))
+    fig = Figure(figsize=(13, 3.0 * len(runs)), constrained_layout=True)
+    axes = np.atleast_2d(fig.subplots(len(runs), 2, sharex=True, gridspec_kw={"width_ratios": [3, 2]}))
+    for (ax_x, ax_e), run in zip(axes, runs):
+        sub = df[df["run"] == run]
+        t = sub["t_s"].to_numpy()
+        ax_x.plot(t, sub["u_c_deg"], color="k", lw=1.0, label="command u_c")
+        scale = 100.0 / sub["amplitude_deg"].to_numpy()
+        for i, name in enumerate(model_names):
+            nonlinear, lpv = sub[f"x_nonlinear_deg_{i}"].to_numpy(), sub[f"x_lpv_deg_{i}"].to_numpy()
+            ax_x.plot(t, nonlinear, color=f"C{i}", lw=1.2, label=name)
+            ax_x.plot(t, lpv, color=f"C{i}", lw=1.2, ls="--")
+            ax_e.plot(t, (lpv - nonlinear) * scale, color=f"C{i}", lw=1.0)
+        ax_x.set_title(run, fontsize=10)
+        ax_x.set_ylabel("deflection (deg)")
+        ax_e.set_ylabel("LPV - nonlinear (% of amplitude)")
+        for ax in (ax_x, ax_e):
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=2, loc="upper right", title="nonlinear solid, LPV dashed", title_fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    return fig
+
+
+def lpv_gains(df: pd.DataFrame, model_names) -> Figure:
+    """Fitted gains k^(i)(rho) over the envelope against the nonlinear actuator's small-error gain.
+
+    ``df`` has one row per (model, vcas_kt, altitude_m, direction) at one deflection
+    ``delta_deg``, with ``k_lpv_1_s`` and ``k_nonlinear_1_s`` (NaN above the Mach limit). One
+    column of panels per model, one row per direction s = sgn(xdot); a line per altitude (LPV
+    solid, nonlinear small-error gain dotted).
+    """
+    directions = sorted(df["direction"].unique(), reverse=True)
+    altitudes = sorted(df["altitude_m"].unique())
+    fig = Figure(figsize=(3.0 * len(model_names), 2.8 * len(directions)), constrained_layout=True)
+    axes = np.atleast_2d(fig.subplots(len(directions), len(model_names), sharex=True, sharey=True))
+    for row, s in zip(axes, directions):
+        for ax, name in zip(row, model_names):
+            for a, alt in enumerate(altitudes):
+                sub = df[(df["model"] == name) & (df["direction"] == s) & (df["altitude_m"] == alt)]
+                sub = sub.sort_values("vcas_kt")
+                ax.plot(sub["vcas_kt"], sub["k_lpv_1_s"], color=f"C{a}", label=f"{alt:.0f} m")
+                ax.plot(sub["vcas_kt"], sub["k_nonlinear_1_s"], color=f"C{a}", ls=":")
+            ax.set_title(f"{name}, s = {s:+.0f}", fontsize=10)
+            ax.grid(alpha=0.3)
+        row[0].set_ylabel("gain k (1/s)")
+    for ax in axes[-1]:
+        ax.set_xlabel("Vcas (kt)")
+    axes[0, 0].legend(fontsize=7, title="LPV solid, nonlinear small-error dotted", title_fontsize=7)
+    fig.suptitle(f"gains at {df['delta_deg'].iloc[0]:+.1f} deg deflection")
+    return fig
+
+
+def fig3(df: pd.DataFrame, fault_free: str, faulty: str, onset_s: float) -> Figure:
+    """Paper Fig. 3: actuator output of a fault-free and a faulty actuator, and their difference."""
+    a = df[df["run"] == fault_free]
+    b = df[df["run"] == faulty]
+    t = a["t_s"].to_numpy()
+    fig = Figure(figsize=(9, 6), constrained_layout=True)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    ax1.plot(t, a["u_c_deg"], color="0.6", lw=1.0, label=f"command u_c ({fault_free})")
+    ax1.plot(t, a["u_deg"], label=f"u, {fault_free}")
+    ax1.plot(t, b["u_deg"], "--", label=f"u, {faulty}")
+    ax1.axvline(onset_s, color="r", lw=0.8, label="fault onset")
+    ax1.set_ylabel("deflection (deg)")
+    ax1.legend(loc="upper right")
+    ax1.set_title("Effect of a parametric LOE fault (paper Fig. 3)")
+    ax1.grid(alpha=0.3)
+    ax2.plot(t, b["delta_deg"].to_numpy() - a["delta_deg"].to_numpy(), color="C3")
+    ax2.axvline(onset_s, color="r", lw=0.8)
+    ax2.set_ylabel("difference (deg)")
+    ax2.set_xlabel("time (s)")
+    ax2.grid(alpha=0.3)
+    return fig
+
+
+def fig4(sweep: pd.DataFrame, model_names, grid_values: dict) -> Figure:
+    """Paper Fig. 4: detected model against fault size, grid values of the bank as vertical lines."""
+    fig = Figure(figsize=(10, 4.5), constrained_layout=True)
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, (family, label) in zip(axes, (("surface", "loss of surface effectiveness (%)"),
+                                         ("leakage", "loss of hydraulic pressure (%)"))):
+        sub = sweep[sweep["family"] == family]
+        for v in grid_values[family]:
+            ax.axvline(100.0 * v, color="0.7", lw=1.0)
+        ax.plot(100.0 * sub["fault_size"], sub["detected_model"], "o", mfc="none")
+        ax.set_xlabel(label)
+        ax.grid(alpha=0.3, axis="y")
+    axes[0].set_yticks(range(-1, len(model_names)), ["no decision"] + list(model_names))
+    axes[0].set_ylabel("detected model")
+    fig.suptitle("Detected model during fault simulations (paper Fig. 4)")
+    return fig
+
+
+def fig5(run: pd.DataFrame) -> Figure:
+    """Paper Fig. 5: command and output, normalised available pressure, stall-detector residual."""
+    t = run["t_s"].to_numpy()
+    fig = Figure(figsize=(9, 7), constrained_layout=True)
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
+    ax1.plot(t, run["u_c_deg"], label="u_c")
+    ax1.plot(t, run["u_deg"], label="u")
+    ax1.set_ylabel("deflection (deg)")
+    ax1.legend(loc="upper right")
+    ax1.set_title("Stall loads during a high-input manoeuvre (paper Fig. 5)")
+    ax2.plot(t, run["dp_avail_norm"], color="C2")
+    ax2.axhline(0.0, color="k", lw=0.8)
+    ax2.set_ylabel("(dP - sgn(xdot) F/S) / dP")
+    ax3.plot(t, run["r_stall_deg"], color="C3")
+    ax3.set_ylabel("residual r (deg)")
+    ax3.set_xlabel("time (s)")
+    for ax in (ax1, ax2, ax3):
+        _shade(ax, t, run["stall"], color="red", alpha=0.12)
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def fig6(run: pd.DataFrame, max_deflection_deg: float) -> Figure:
+    """Paper Fig. 6: stall identification signal eta beside normalised command and output."""
+    t = run["t_s"].to_numpy()
+    fig = Figure(figsize=(9, 5), constrained_layout=True)
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    ax1.plot(t, run["u_c_deg"] / max_deflection_deg, label="u_c / max")
+    ax1.plot(t, run["u_deg"] / max_deflection_deg, label="u / max")
+    ax1.set_ylabel("normalised deflection")
+    ax1.legend(loc="upper right")
+    ax1.set_title("Stall-load identification signal (paper Fig. 6)")
+    ax2.step(t, run["eta_signal"].astype(float), where="post", label="eta, signal-based (32)-(35)")
+    ax2.step(t, run["eta_model"].astype(float) * 0.9, where="post", label="eta, model detection (30) (x0.9)")
+    ax2.set_ylabel("eta")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(loc="upper right")
+    for ax in (ax1, ax2):
+        _shade(ax, t, run["stall"], color="red", alpha=0.12)
+        ax.grid(alpha=0.3)
     return fig

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from mcfdd.analysis.simulate import step_noise
+from mcfdd.analysis.simulate import scan_steps
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
@@ -199,16 +199,15 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
     n_models = fdd_params.loe.bank.k0.shape[0]
     red = reduction_init(n_models, zero.dtype)
 
-    def body(carry, k):
+    def body(carry, k, noise):
         plant_state, fdd_state, red = carry
         t = k * dt_s
-        plant_state, out = closed_loop.step(params, plant_state, t, step_noise(key, k + 1, closed_loop.NOISE_DIM),
-                                            dt_s, substeps, kinds)
+        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
         fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
                                     scenario.altitude_m, t, dt_s)
         return (plant_state, fdd_state, reduction_step(settings, truth, red, t, out, fo)), None
 
-    (_, _, red), _ = jax.lax.scan(body, (plant_state, fdd_state, red), jnp.arange(n_steps))
+    (_, _, red), _ = scan_steps(body, (plant_state, fdd_state, red), key, n_steps, closed_loop.NOISE_DIM)
     return finalize(settings, red, n_steps * dt_s)
 
 

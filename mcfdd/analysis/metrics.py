@@ -73,7 +73,7 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "false_alarm_model": np.asarray(raw["false_alarm_model"]),
         "detected": detected,
         "detection_time_s": np.where(detected, det_time, np.nan),
-        "detection_latency_s": np.where(detected, det_time - onset, np.nan),
+        "detection_latency_s": np.where(detected, det_time - np.where(faulty, onset, 0.0), np.nan),
         "detected_model": np.where(detected, det_model, -1),
         "identified_correctly": correct,
         "stall_events": n_events,
@@ -106,3 +106,26 @@ def bound_with_witness(values, scenario_ids, kind: str):
     idx = np.flatnonzero(finite)
     best = idx[np.argmax(v[idx])] if kind == "sup" else idx[np.argmin(v[idx])]
     return float(v[best]), int(np.asarray(scenario_ids)[best])
+
+
+def decision_history(detected, t_s, onset_s):
+    """First, last and switches of fault-model decisions after the onset, from decision histories.
+
+    ``detected`` is (runs, steps) of decoded model ids (-1 none, 0 fault-free). Returns a dict of
+    (runs,) arrays: first fault model and its time (nan if none), last fault model, and how many
+    times the decided fault model changed after the first decision.
+    """
+    detected = np.asarray(detected)
+    after = np.asarray(t_s)[None, :] >= np.asarray(onset_s, dtype=float)[:, None]
+    fault = (detected >= 1) & after
+    first_idx = np.where(fault.any(axis=1), fault.argmax(axis=1), -1)
+    rows = np.arange(detected.shape[0])
+    first = np.where(first_idx >= 0, detected[rows, first_idx], -1)
+    time = np.where(first_idx >= 0, np.asarray(t_s)[np.maximum(first_idx, 0)], np.nan)
+    last_idx = detected.shape[1] - 1 - np.where(fault.any(axis=1), fault[:, ::-1].argmax(axis=1), detected.shape[1])
+    last = np.where(first_idx >= 0, detected[rows, np.clip(last_idx, 0, detected.shape[1] - 1)], -1)
+    switches = np.zeros(detected.shape[0], dtype=int)
+    for r in rows:
+        models = detected[r, fault[r]]
+        switches[r] = int(np.count_nonzero(models[1:] != models[:-1]))
+    return {"first_model": first, "detection_time_s": time, "last_model": last, "switches": switches}

@@ -135,7 +135,8 @@ def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_
     """Columns (dict of arrays) of a design: grid axes crossed with ``n_samples`` draws of the rest.
 
     With ``design == 'grid'`` every non-constant axis is gridded and ``n_samples`` is ignored.
-    Rows whose grid flight point lies above the Mach limit are dropped. Returns (columns, n_rows).
+    Columns not in ``axes`` take their :data:`DEFAULTS`. Rows whose grid flight point lies above the
+    Mach limit are dropped. Returns (columns, n_rows).
     """
     by_name = {a.name: a for a in axes}
     varying = [a for a in axes if a.kind != "const"]
@@ -166,7 +167,9 @@ def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_
     if "_u_vcas" in cols:
         a = by_name["vcas_kt"]
         cols["vcas_kt"] = a.lo + cols.pop("_u_vcas") * (np.minimum(a.hi, v_max) - a.lo)
-    keep = np.asarray(cols.get("vcas_kt", np.full(n, DEFAULTS["vcas_kt"])), dtype=float) <= v_max + 1e-9
+    for name, value in DEFAULTS.items():
+        cols.setdefault(name, np.full(n, value))
+    keep = np.asarray(cols["vcas_kt"], dtype=float) <= v_max + 1e-9
     cols = {k: np.asarray(v)[keep] for k, v in cols.items()}
     return cols, int(keep.sum())
 

@@ -124,5 +124,17 @@ def init(params: TurbulenceParams, noise3):
 
 
 def step(params: TurbulenceParams, state, noise3):
-    """Returns (new state, gusts (v_g m/s, p_g rad/s) at the start of the step)."""
-    return params.phi @ state + params.chol_q @ noise3, params.out @ state
+    """Returns (new state, gusts (v_g m/s, p_g rad/s) at the start of the step).
+
+    Written out over the block structure of the matrices (H_v's 2 x 2 block and H_p's scalar):
+    element-wise arithmetic vectorises across a batch where small matrix products do not.
+    """
+    phi, chol, out = params.phi, params.chol_q, params.out
+    x1, x2, x3 = state[0], state[1], state[2]
+    n1, n2, n3 = noise3[0], noise3[1], noise3[2]
+    new = jnp.stack([
+        phi[0, 0] * x1 + phi[0, 1] * x2 + chol[0, 0] * n1,
+        phi[1, 0] * x1 + phi[1, 1] * x2 + chol[1, 0] * n1 + chol[1, 1] * n2,
+        phi[2, 2] * x3 + chol[2, 2] * n3,
+    ])
+    return new, (out[0, 0] * x1 + out[0, 1] * x2, out[1, 2] * x3)
