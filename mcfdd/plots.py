@@ -173,7 +173,7 @@ def fig3(df: pd.DataFrame, fault_free: str, faulty: str, onset_s: float) -> Figu
 
 
 def fig4(sweep: pd.DataFrame, model_names, grid_values: dict) -> Figure:
-    """Paper Fig. 4: detected model against fault size, grid values of the bank as vertical lines."""
+    """Paper Fig. 4: decided model against fault size, grid values of the bank as vertical lines."""
     fig = Figure(figsize=(10, 4.5), constrained_layout=True)
     axes = fig.subplots(1, 2, sharey=True)
     for ax, (family, label) in zip(axes, (("surface", "loss of surface effectiveness (%)"),
@@ -185,7 +185,7 @@ def fig4(sweep: pd.DataFrame, model_names, grid_values: dict) -> Figure:
         ax.set_xlabel(label)
         ax.grid(alpha=0.3, axis="y")
     axes[0].set_yticks(range(-1, len(model_names)), ["no decision"] + list(model_names))
-    axes[0].set_ylabel("detected model")
+    axes[0].set_ylabel("decided model after the onset")
     fig.suptitle("Detected model during fault simulations (paper Fig. 4)")
     return fig
 

@@ -29,6 +29,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.sharding import AxisType
+from jax.sharding import PartitionSpec as P
 
 from mcfdd.analysis.simulate import scan_steps
 from mcfdd.fdd import decision, system
@@ -214,8 +216,21 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
 def run_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
               kinds: tuple[int, ...]) -> dict:
-    """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit."""
-    def one(scenario, truth, key):
-        return run_one(model, fdd_params, settings, scenario, truth, key, n_steps, dt_s, substeps, kinds)
+    """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit.
 
-    return jax.vmap(one)(scenarios, truths, keys)
+    With several devices (on a CPU: ``--xla_force_host_platform_device_count``) and a batch
+    that divides among them, the batch is split over the devices with ``shard_map``; each
+    scenario's numbers are the same either way.
+    """
+    def batched(model, fdd_params, settings, scenarios, truths, keys):
+        def one(scenario, truth, key):
+            return run_one(model, fdd_params, settings, scenario, truth, key, n_steps, dt_s, substeps, kinds)
+
+        return jax.vmap(one)(scenarios, truths, keys)
+
+    n_dev = jax.device_count()
+    if n_dev > 1 and keys.shape[0] % n_dev == 0:
+        mesh = jax.make_mesh((n_dev,), ("batch",), axis_types=(AxisType.Auto,))
+        batched = jax.shard_map(batched, mesh=mesh, in_specs=(P(), P(), P(), P("batch"), P("batch"), P("batch")),
+                                out_specs=P("batch"), check_vma=False)
+    return batched(model, fdd_params, settings, scenarios, truths, keys)

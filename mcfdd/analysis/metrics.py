@@ -109,23 +109,27 @@ def bound_with_witness(values, scenario_ids, kind: str):
 
 
 def decision_history(detected, t_s, onset_s):
-    """First, last and switches of fault-model decisions after the onset, from decision histories.
+    """Fault-model decisions after the onset, from decision histories.
 
-    ``detected`` is (runs, steps) of decoded model ids (-1 none, 0 fault-free). Returns a dict of
-    (runs,) arrays: first fault model and its time (nan if none), last fault model, and how many
-    times the decided fault model changed after the first decision.
+    ``detected`` is (runs, steps) of decided model ids (-1 none, 0 fault-free). Returns a dict of
+    (runs,) arrays: the first fault model and its time (nan if none), the prevailing decision
+    (the model, fault-free included, decided for the most samples after the onset; -1 if none)
+    and how many times the decided fault model changed after the first fault-model decision.
     """
     detected = np.asarray(detected)
+    n_runs = detected.shape[0]
     after = np.asarray(t_s)[None, :] >= np.asarray(onset_s, dtype=float)[:, None]
     fault = (detected >= 1) & after
     first_idx = np.where(fault.any(axis=1), fault.argmax(axis=1), -1)
-    rows = np.arange(detected.shape[0])
+    rows = np.arange(n_runs)
     first = np.where(first_idx >= 0, detected[rows, first_idx], -1)
     time = np.where(first_idx >= 0, np.asarray(t_s)[np.maximum(first_idx, 0)], np.nan)
-    last_idx = detected.shape[1] - 1 - np.where(fault.any(axis=1), fault[:, ::-1].argmax(axis=1), detected.shape[1])
-    last = np.where(first_idx >= 0, detected[rows, np.clip(last_idx, 0, detected.shape[1] - 1)], -1)
-    switches = np.zeros(detected.shape[0], dtype=int)
+    prevailing = np.full(n_runs, -1)
+    switches = np.zeros(n_runs, dtype=int)
     for r in rows:
+        decided = detected[r, after[r] & (detected[r] >= 0)]
+        if decided.size:
+            prevailing[r] = np.bincount(decided).argmax()
         models = detected[r, fault[r]]
         switches[r] = int(np.count_nonzero(models[1:] != models[:-1]))
-    return {"first_model": first, "detection_time_s": time, "last_model": last, "switches": switches}
+    return {"first_model": first, "detection_time_s": time, "prevailing_model": prevailing, "switches": switches}

@@ -6,6 +6,10 @@ carries the residuals (for a frozen flight point, filter i on model j gives
 ``(k_j - k_i)/k0_i * a/(s+a) * s/(s+k_j) u_c``). The ratio theta_i / ||u|| is then close to the
 relative gain mismatch |k_j - k_i| / k0_i, so one threshold tau_m serves all filters. Below an
 excitation floor no decision is made: the signature is only meaningful while the command moves.
+
+A decoded model becomes a decision once it has been decoded without interruption for a
+confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
+keeps short noise-driven signatures from raising alarms.
 """
 
 from __future__ import annotations
@@ -40,6 +44,19 @@ def decode(iota, excited):
     zeros = ~iota
     single = jnp.sum(zeros) == 1
     return jnp.where(single & excited, jnp.argmax(zeros), NO_DECISION).astype(jnp.int32)
+
+
+def confirm_init():
+    """Confirmation state: (model decoded so far, how long it has been decoded in a row in s)."""
+    return jnp.asarray(NO_DECISION, jnp.int32), jnp.asarray(0.0)
+
+
+def confirm_step(state, decoded, confirm_s, dt_s: float):
+    """Returns (new state, confirmed model id or NO_DECISION)."""
+    model, held = state
+    held = jnp.where((decoded == model) & (decoded != NO_DECISION), held + dt_s, 0.0)
+    confirmed = jnp.where((decoded != NO_DECISION) & (held >= confirm_s - 0.5 * dt_s), decoded, NO_DECISION)
+    return (decoded, held), confirmed.astype(jnp.int32)
 
 
 def threshold(theta, tau):

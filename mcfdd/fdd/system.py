@@ -25,6 +25,7 @@ class LoeParams(NamedTuple):
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
     excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
+    confirm_s: float  # a decoded model must persist this long to become a decision
 
 
 class StallParams(NamedTuple):
@@ -45,6 +46,7 @@ class FddState(NamedTuple):
     bank_xi: jnp.ndarray
     band: jnp.ndarray
     band_xi: jnp.ndarray
+    confirm: tuple
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
     signal: stall.SignalState
@@ -57,7 +59,8 @@ class FddOutputs(NamedTuple):
     theta_u: jnp.ndarray  # ||u||, evaluated band-passed command
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
     iota: jnp.ndarray  # (N,) signature
-    detected: jnp.ndarray  # model id, -1 for no decision
+    decoded: jnp.ndarray  # model id of the signature, -1 for none
+    detected: jnp.ndarray  # confirmed model id, -1 for no decision
     r_stall: jnp.ndarray
     theta_stall: jnp.ndarray
     iota_stall: jnp.ndarray
@@ -76,6 +79,7 @@ def init(params: FddParams, u0, u_c0) -> FddState:
         bank_xi=jnp.zeros_like(bank_xq),
         band=decision.excitation_init(u_c0),
         band_xi=jnp.zeros_like(u0),
+        confirm=decision.confirm_init(),
         stall_xq=residual.init(u0),
         stall_xi=jnp.zeros_like(u0),
         signal=stall.signal_init(u0),
@@ -96,7 +100,8 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
     iota = decision.signature(theta, theta_u, loe.tau)
     excited = theta_u >= loe.excitation_floor
-    detected = decision.decode(iota, excited)
+    decoded = decision.decode(iota, excited)
+    confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
 
     stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
     stall_xi, theta_stall = evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s)
@@ -104,6 +109,6 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, stall_xq, stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, excited, iota, detected, r_stall, theta_stall, iota_stall, eta_signal,
+    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, stall_xq, stall_xi, signal, model)
+    return new, FddOutputs(r, theta, theta_u, excited, iota, decoded, detected, r_stall, theta_stall, iota_stall, eta_signal,
                            eta_model, theta_sl)

@@ -16,6 +16,9 @@ gain, ``xdot = k (u_c - x)`` with
 
 and each sub-step integrates ``xdot = k (u_c - x)`` exactly for the gain frozen over the
 sub-step, ``x+ = u_c - e exp(-k h)``: it never overshoots the command and holds still in a stall.
+The hinge load is read from the table once per sample; sub-steps follow the line of the table
+cell the rod started in (exact for a piecewise-linear table while the rod stays in that cell, and
+the rod moves less than a cell in a sample).
 Faults step in at their onset times: leakage (nu1 < 1), surface damage or disconnection (nu2 < 1,
 nu2 = 0 disconnected) and jamming (rod frozen where it is).
 """
@@ -126,15 +129,14 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
     x_max = params.r_arm_m * params.max_deflection_rad
     h = dt_s / substeps
 
-    def load_at(x):
-        return hinge.interpolate_delta(delta_grid_rad, load_slice_n, x / params.r_arm_m)
-
     x0 = state.x_m
-    k0, a0 = gain(params, nu1, nu2, load_at(x0), x0, u_c_m)
+    load0, slope = hinge.local_line(delta_grid_rad, load_slice_n, x0 / params.r_arm_m)
+    k0, a0 = gain(params, nu1, nu2, load0, x0, u_c_m)
     x1, k = x0, k0
     for i in range(substeps):
         if i:
-            k, _ = gain(params, nu1, nu2, load_at(x1), x1, u_c_m)
+            load = load0 + slope * (x1 - x0) / params.r_arm_m
+            k, _ = gain(params, nu1, nu2, load, x1, u_c_m)
         x_new = u_c_m - (u_c_m - x1) * jnp.exp(-k * h)
         x1 = jnp.clip(jnp.where(jammed, x1, x_new), -x_max, x_max)
     outputs = ActuatorOutputs(

@@ -79,8 +79,14 @@ def flight_point_slice(table: HingeTable, vcas_m_s, altitude_m):
 
 def interpolate_delta(delta_grid_rad, load_slice_n, delta_rad):
     """Linear interpolation of a flight-point slice at deflection ``delta_rad`` (clamped)."""
+    return local_line(delta_grid_rad, load_slice_n, delta_rad)[0]
+
+
+def local_line(delta_grid_rad, load_slice_n, delta_rad):
+    """Interpolated load (N) at ``delta_rad`` and the slope (N/rad) of the table cell it lies in."""
     k, w = _cell(delta_grid_rad, delta_rad)
-    return load_slice_n[k] * (1.0 - w) + load_slice_n[k + 1] * w
+    lo, hi = load_slice_n[k], load_slice_n[k + 1]
+    return lo + (hi - lo) * w, (hi - lo) / (delta_grid_rad[1] - delta_grid_rad[0])
 
 
 def interpolate(table: HingeTable, vcas_m_s, altitude_m, delta_rad):
