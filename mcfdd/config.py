@@ -329,10 +329,12 @@ class LoeDetectionConfig:
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=0.0, beta=1.0, gamma_1_s=1.0))
-    tau: float = spec(0.06, lo=0.0, lo_open=True, hi=10.0,
+    tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
                       doc="threshold on theta_i / ||u||, about the relative gain mismatch |k_j - k_i| / k0_i")
     excitation_floor_deg: float = spec(0.05, lo=0.0, doc="no decision while ||u|| is below this")
     confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="a decoded model must persist this long to be decided")
+    max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
+                                    "hinge-load fraction (1 disables)")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -343,6 +345,7 @@ class SignalRulesConfig:
     command_min_deg: float = spec(10.0, lo=0.0, doc="tau_uc,max of (34)")
     position_min_deg: float = spec(10.0, lo=0.0, doc="tau_u,max of (34)")
     window_s: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="re-anchoring window of the mean rate (32)")
+    error_min_deg: float = spec(0.5, lo=0.0, doc="smallest |u_c - u| for which (35) counts")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -379,11 +382,13 @@ class FddConfig:
         loe, stl = self.loe, self.stall
         return system.FddParams(
             loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
-                                 excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s),
+                                 excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
+                                 max_load_fraction=loe.max_load_fraction),
             stall=system.StallParams(
                 pole=stl.pole_1_s, evaluator=stl.evaluator.params(), tau=stl.tau_deg * deg,
                 signal=stall.SignalRules(stl.signal.rate_min_deg_s * deg, stl.signal.command_min_deg * deg,
-                                         stl.signal.position_min_deg * deg, stl.signal.window_s),
+                                         stl.signal.position_min_deg * deg, stl.signal.window_s,
+                                         stl.signal.error_min_deg * deg),
                 model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, stl.model.evaluator.params(),
                                       stl.model.tau_deg * deg)),
         )

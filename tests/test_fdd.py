@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
 from mcfdd import io
-from mcfdd.config import FddConfig
+from mcfdd.config import FddConfig, LoeDetectionConfig
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, system, thresholds
 
 DT_S = 0.01
@@ -380,7 +380,7 @@ def test_signature_and_threshold_direction():
 
 
 RULES = stall.SignalRules(rate_min_m_s=2.0 * DEG_M, command_min_m=10.0 * DEG_M, position_min_m=8.0 * DEG_M,
-                          window_s=0.1)
+                          window_s=0.1, error_min_m=0.5 * DEG_M)
 
 
 @jax.jit
@@ -511,7 +511,8 @@ fdd_on_lpv_model.traces = 0
 def test_system_detects_the_plant_model(bank):
     """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
     1 once excited. A second run with another tau does not recompile."""
-    params = FddConfig().params(bank, r_arm_m=R_ARM_M)
+    loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0)
+    params = FddConfig(loe=loe).params(bank, r_arm_m=R_ARM_M)
     t = np.arange(1500) * DT_S
     u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)
     excited = t >= 5.0

@@ -14,8 +14,8 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
 - Stall loads: events are the intervals where the plant's stall flag is set; an event is
   relevant if it lasts at least ``stall_min_duration_s`` and the tracking error reaches
   ``stall_min_error_m``. Counted: relevant events, identified ones per identification method and
-  the worst latency (first eta = 1 minus onset) of each method; eta = 1 outside events (after a
-  grace period following an event); the stall detector's largest theta outside events before any
+  the worst latency (first eta = 1 minus onset) of each method; eta = 1 outside events (not
+  counted within a grace period after an event, nor just before one begins); the stall detector's largest theta outside events before any
   fault (its false-alarm bound, eq. 26) and, per relevant event, the peak theta within
   ``stall_window_s`` of the onset (its smallest value over the run feeds the detection bound,
   eq. 27, read as "detected within the window").
@@ -82,6 +82,8 @@ class Reduction(NamedTuple):
     theta_peak_min: jnp.ndarray
     eta_outside_signal: jnp.ndarray
     eta_outside_model: jnp.ndarray
+    eta_pending_signal: jnp.ndarray
+    eta_pending_model: jnp.ndarray
     theta_stall_max_free: jnp.ndarray
 
 
@@ -95,7 +97,8 @@ def reduction_init(n_models: int, dtype) -> Reduction:
         event_start=inf, event_max_error=jnp.zeros((), dtype), event_theta_peak=-inf, event_eta_signal=inf,
         event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
         n_identified_model=zero_i, worst_latency_signal=-inf, worst_latency_model=-inf, theta_peak_min=inf,
-        eta_outside_signal=inf, eta_outside_model=inf, theta_stall_max_free=-inf)
+        eta_outside_signal=inf, eta_outside_model=inf, eta_pending_signal=inf, eta_pending_model=inf,
+        theta_stall_max_free=-inf)
 
 
 def _close_event(s: Settings, red: Reduction, t_end, closing):
@@ -117,6 +120,22 @@ def _close_event(s: Settings, red: Reduction, t_end, closing):
         last_stall_end=jnp.where(closing, t_end, red.last_stall_end),
         in_event=red.in_event & ~closing,
     )
+
+
+def _eta_outside(s: Settings, red: Reduction, method: str, outside, opening, t) -> dict:
+    """eta = 1 away from stall loads: held as pending for the grace time, dropped if a stall begins.
+
+    The plant flags a stall once the available pressure has all but vanished, shortly after the
+    rod has slowed down, so eta = 1 just before an onset is not a false identification.
+    """
+    pending = getattr(red, f"eta_pending_{method}")
+    found = getattr(red, f"eta_outside_{method}")
+    explained = opening & (t - pending <= s.stall_grace_s)
+    expired = t - pending > s.stall_grace_s
+    found = jnp.where(expired & ~explained, jnp.minimum(found, pending), found)
+    pending = jnp.where(explained | expired, jnp.inf, pending)
+    pending = jnp.where(outside & ~jnp.isfinite(pending), t, pending)
+    return {f"eta_outside_{method}": found, f"eta_pending_{method}": pending}
 
 
 def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_loop.PlantOutputs,
@@ -164,10 +183,8 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
         ratio_max_pre=jnp.where(pre, jnp.maximum(red.ratio_max_pre, ratio), red.ratio_max_pre),
         ratio_min_post=jnp.where(post, jnp.minimum(red.ratio_min_post, ratio), red.ratio_min_post),
         others_min_peak=jnp.where(post, jnp.maximum(red.others_min_peak, others_min), red.others_min_peak),
-        eta_outside_signal=jnp.where(settled & clear_of_stall & fdd.eta_signal,
-                                     jnp.minimum(red.eta_outside_signal, t), red.eta_outside_signal),
-        eta_outside_model=jnp.where(settled & clear_of_stall & fdd.eta_model,
-                                    jnp.minimum(red.eta_outside_model, t), red.eta_outside_model),
+        **_eta_outside(s, red, "signal", settled & clear_of_stall & fdd.eta_signal, opening, t),
+        **_eta_outside(s, red, "model", settled & clear_of_stall & fdd.eta_model, opening, t),
         theta_stall_max_free=jnp.where(quiet, jnp.maximum(red.theta_stall_max_free, fdd.theta_stall),
                                        red.theta_stall_max_free),
     )
@@ -176,6 +193,8 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
 def finalize(s: Settings, red: Reduction, t_end) -> dict:
     """Close an event still open at the end of the run; outcomes as a dict of arrays."""
     red = _close_event(s, red, t_end, red.in_event)
+    red = red._replace(eta_outside_signal=jnp.minimum(red.eta_outside_signal, red.eta_pending_signal),
+                       eta_outside_model=jnp.minimum(red.eta_outside_model, red.eta_pending_model))
     return {
         "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
         "false_alarm_time_s": red.fa_time, "false_alarm_model": red.fa_model,

@@ -11,7 +11,7 @@ jamming is of interest at small deflections, stall loads occur at large ones.
 
     (33) |mean rate| = |u(t) - u(t_a)| / (t - t_a) <= u_dot_min
     (34) |u_c| >= tau_uc,max  and  |u| >= tau_u,max
-    (35) sgn(u_c - u) = sgn(u)
+    (35) sgn(u_c - u) = sgn(u), with |u_c - u| above a small margin (sensor noise)
 
 and eta = 1 while iota = 1 and all three hold. The anchor (t_a, u(t_a)) of the mean rate (32) is
 set at t_d; because the evaluator holds iota up long after a stall ends, the anchor also moves to
@@ -36,6 +36,7 @@ class SignalRules(NamedTuple):
     command_min_m: float
     position_min_m: float
     window_s: float
+    error_min_m: float
 
 
 class ModelRule(NamedTuple):
@@ -58,9 +59,14 @@ def large_signals(rules: SignalRules, u_c, u):
     return (jnp.abs(u_c) >= rules.command_min_m) & (jnp.abs(u) >= rules.position_min_m)
 
 
-def outward(u_c, u):
-    """Condition (35): the command lies beyond the position, away from neutral."""
-    return jnp.sign(u_c - u) == jnp.sign(u)
+def outward(rules: SignalRules, u_c, u):
+    """Condition (35), sgn(u_c - u) = sgn(u), with the error at least ``error_min_m``.
+
+    Without the margin, a rod resting on its command at a large deflection (e = 0 up to sensor
+    noise) would meet (35) on every other sample.
+    """
+    error = u_c - u
+    return (jnp.sign(error) == jnp.sign(u)) & (jnp.abs(error) >= rules.error_min_m)
 
 
 def signal_init(u0) -> SignalState:
@@ -76,7 +82,7 @@ def signal_step(rules: SignalRules, state: SignalState, iota, u_c, u, t_s):
     elapsed = t_s - anchor_t
     mean_rate = jnp.abs(u - anchor_u) / jnp.maximum(elapsed, 1e-9)
     slow = (elapsed > 0.0) & (mean_rate <= rules.rate_min_m_s)
-    eta = iota & slow & large_signals(rules, u_c, u) & outward(u_c, u)
+    eta = iota & slow & large_signals(rules, u_c, u) & outward(rules, u_c, u)
     moved = (elapsed >= rules.window_s) & (mean_rate > rules.rate_min_m_s)
     new = SignalState(jnp.where(moved, t_s, anchor_t), jnp.where(moved, u, anchor_u), iota)
     return new, eta
@@ -95,5 +101,5 @@ def model_step(rule: ModelRule, gate: SignalRules, state: ModelState, iota, u_c,
     """Identification (a). Returns (new state, eta, r_sl, theta_sl)."""
     x_q, r_sl = residual.step(state.x_q, u, u_c, rule.k_sl, rule.k_sl, rule.pole, dt_s)
     xi, theta_sl = evaluator.step(rule.evaluator, state.xi, r_sl, dt_s)
-    eta = iota & (theta_sl < rule.tau) & large_signals(gate, u_c, u) & outward(u_c, u)
+    eta = iota & (theta_sl < rule.tau) & large_signals(gate, u_c, u) & outward(gate, u_c, u)
     return ModelState(x_q, xi), eta, r_sl, theta_sl

@@ -2,7 +2,10 @@
 
 - Model detection for parametric LOE faults (Fig. 1, Section 4): a bank of detectors (20) with
   the gains k^(i) of the LPV bank, Narendra evaluators, the normalised decision (15) and the
-  signature decoding into a detected model id.
+  signature decoding into a detected model id. The affine gains of eq. (4) cannot follow the
+  square-root fall of the gain towards a stall load, so residuals are evaluated only while the
+  bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
+  no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction``.
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
   evaluator and decision (25), and both identification methods of Section 5.4.
 
@@ -26,6 +29,7 @@ class LoeParams(NamedTuple):
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
     excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
     confirm_s: float  # a decoded model must persist this long to become a decision
+    max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
 
 
 class StallParams(NamedTuple):
@@ -57,6 +61,7 @@ class FddOutputs(NamedTuple):
     r: jnp.ndarray  # (N,) bank residuals (m)
     theta: jnp.ndarray  # (N,) evaluated residuals
     theta_u: jnp.ndarray  # ||u||, evaluated band-passed command
+    load_fraction: jnp.ndarray  # estimated hinge-load fraction (residual evaluation stops above the limit)
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
     iota: jnp.ndarray  # (N,) signature
     decoded: jnp.ndarray  # model id of the signature, -1 for none
@@ -67,6 +72,18 @@ class FddOutputs(NamedTuple):
     eta_signal: jnp.ndarray
     eta_model: jnp.ndarray
     theta_sl: jnp.ndarray
+
+
+def load_fraction(bank: lpv.GainBank, k):
+    """Estimated hinge-load fraction F / (dP S) from the gains k (N,) of the bank's models.
+
+    The fault-free gain scales as sqrt(1 - f) of the no-load gain (nu = [1, 0]) when the rod moves
+    against the load and as sqrt(1 + f) when the load helps, so the estimate is signed; 0 if the
+    bank has no no-load model.
+    """
+    no_load = jnp.isclose(bank.nu[:, 0], 1.0) & (bank.nu[:, 1] == 0.0)
+    k_free = jnp.max(jnp.where(no_load, k, 0.0))
+    return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
 def init(params: FddParams, u0, u_c0) -> FddState:
@@ -95,9 +112,11 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     k = lpv.gains(bank, u, direction, vcas_m_s, altitude_m)
 
     bank_xq, r = residual.step(state.bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
-    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
+    load = load_fraction(bank, k)
+    valid = jnp.abs(load) <= loe.max_load_fraction
+    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, jnp.where(valid, r, 0.0), dt_s)
     band, bp = decision.excitation_step(state.band, u_c, loe.pole, bank.k0[0], dt_s)
-    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
+    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, jnp.where(valid, bp, 0.0), dt_s)
     iota = decision.signature(theta, theta_u, loe.tau)
     excited = theta_u >= loe.excitation_floor
     decoded = decision.decode(iota, excited)
@@ -110,5 +129,5 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
 
     new = FddState(bank_xq, bank_xi, band, band_xi, confirm, stall_xq, stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, excited, iota, decoded, detected, r_stall, theta_stall, iota_stall, eta_signal,
+    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, r_stall, theta_stall, iota_stall, eta_signal,
                            eta_model, theta_sl)

@@ -91,7 +91,7 @@ def gain(params: ActuatorParams, nu1, nu2, load_n, x_m, u_c_m):
     Returns (gain, available pressure A in Pa).
     """
     e = u_c_m - x_m
-    saturation = jnp.minimum(1.0, params.max_current_a / jnp.maximum(params.kp_a_m * jnp.abs(e), 1e-30))
+    saturation = params.max_current_a / jnp.maximum(params.kp_a_m * jnp.abs(e), params.max_current_a)
     current = params.kp_a_m * e * saturation
     g = (params.kci_m_s_a * current) ** 2 / params.ref_pressure_pa
     a = available_pressure(params, nu1, nu2, load_n, e)

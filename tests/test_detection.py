@@ -1,0 +1,103 @@
+"""Both FDD systems in closed loop on the nonlinear plant (issues 4 and 5), default parameters."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mcfdd import cli, config
+from mcfdd.analysis import metrics
+
+CLOSED_LOOP = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip")
+
+
+def simulate(runs, duration_s, fdd=None):
+    cfg = config.parse(config.SimulateConfig, {"simulation": {"duration_s": duration_s, "seed": 3, "precision": "float64"},
+                                               "runs": runs, "fdd": fdd or {}})
+    df, _ = cli.histories(cfg.simulation, cfg.plant, cfg.fdd, cli._runs_table(cfg.runs), [r["name"] for r in runs])
+    return cfg, df
+
+
+def manoeuvre(kind, amplitude):
+    return {"kind": kind, "amplitude": amplitude, "t_start_s": 4.0, "duration_s": 2.0, "hold_s": 2.0,
+            "sideslip_deg": 6.0 * amplitude, "ramp_s": 1.0 if kind == "sideslip" else 0.3}
+
+
+def test_fault_free_runs_never_decide_a_fault_model():
+    """Every closed-loop manoeuvre at low, medium and high speed, nominal parameters, light turbulence."""
+    runs = [{"name": f"{kind}-{v:.0f}-{h:.0f}-{a}", "vcas_kt": v, "altitude_m": h, "manoeuvre": manoeuvre(kind, a)}
+            for kind in CLOSED_LOOP for v, h in ((170.0, 8000.0), (250.0, 3000.0), (330.0, 1000.0))
+            for a in (-1.0, 0.6)]
+    _, df = simulate(runs, 25.0)
+    decided = df.groupby("run")["detected_model"].max()
+    assert (decided <= 0).all(), decided[decided > 0]
+    assert not df["eta_stall"].any()
+
+
+def test_fig4_grid_faults_are_identified_without_switching():
+    """At the Fig. 4 flight point, faults at the bank's grid values are identified as that model."""
+    sweep = config.load(config.SweepConfig, "configs/fig4.toml")
+    base = sweep.run.columns()
+    cases = {"disconnection": ("disconnection", 1.0, 1), "surface-67": ("surface_damage", 0.67, 2),
+             "leakage-27": ("leakage", 0.27, 5), "leakage-15": ("leakage", 0.15, 4)}
+    runs = []
+    for name, (kind, size, _) in cases.items():
+        run = {k: v for k, v in config.to_dict(sweep.run).items() if k not in ("fault",)}
+        runs.append({**run, "name": name, "fault": {"kind": kind, "size": size, "onset_s": base["fault_onset_s"]}})
+    _, df = simulate(runs, sweep.simulation.duration_s, config.to_dict(sweep.fdd))
+    n = int(round(sweep.simulation.duration_s / sweep.simulation.dt_s))
+    detected = np.stack([df.loc[df["run"] == r["name"], "detected_model"].to_numpy() for r in runs])
+    hist = metrics.decision_history(detected, df["t_s"].to_numpy()[:n], np.full(len(runs), base["fault_onset_s"]))
+    for i, (name, (_, _, model)) in enumerate(cases.items()):
+        assert hist["first_model"][i] == model, name
+        assert hist["switches"][i] == 0, name
+    latency = hist["detection_time_s"][0] - base["fault_onset_s"]
+    assert latency < 10.0, "total loss of effectiveness is detected well inside the paper's 10 s"
+
+
+@pytest.fixture(scope="module")
+def fig5():
+    cfg = config.load(config.SimulateConfig, "configs/fig5.toml")
+    cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, precision="float64"))
+    df, _ = cli.histories(cfg.simulation, cfg.plant, cfg.fdd, cli._runs_table(cfg.runs), [r.name for r in cfg.runs])
+    return df
+
+
+def stall_events(stall):
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], stall.astype(int), [0]])))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+def test_fig5_stall_events_are_identified_fast(fig5):
+    stall = fig5["stall"].to_numpy(dtype=bool)
+    events = stall_events(stall)
+    assert len(events) == 2
+    t = fig5["t_s"].to_numpy()
+    for method, limit in (("signal", 0.5), ("model", 1.0)):
+        eta = fig5[f"eta_{method}"].to_numpy(dtype=bool)
+        for start, end in events:
+            assert eta[start:end].any(), method
+            assert t[start + eta[start:end].argmax()] - t[start] <= limit, method
+    outside = fig5["eta_signal"].to_numpy(dtype=bool) & ~stall
+    grace = np.zeros_like(stall)
+    for start, end in events:
+        grace[max(start - 50, 0):end + 50] = True
+    assert not (outside & ~grace).any()
+
+
+def test_jamming_and_stall_free_high_inputs_do_not_give_eta():
+    """A jam at small deflection while the stick moves, and a full-stick roll at moderate speed."""
+    runs = [
+        {"name": "jam-small", "vcas_kt": 300.0, "altitude_m": 1000.0, "fault": {"kind": "jamming", "onset_s": 3.0},
+         "manoeuvre": manoeuvre("doublet", 1.0)},
+        {"name": "full-stick", "vcas_kt": 280.0, "altitude_m": 2000.0, "manoeuvre": manoeuvre("roll_protection", 1.0)},
+        {"name": "sideslip", "vcas_kt": 260.0, "altitude_m": 2000.0,
+         "manoeuvre": {**manoeuvre("sideslip", 1.0), "sideslip_deg": 8.0}},
+    ]
+    _, df = simulate(runs, 15.0)
+    jam = df[df["run"] == "jam-small"]
+    assert jam["iota_stall"].any(), "the jam is detected by the stall detector's residual"
+    assert jam["delta_deg"].abs().max() < 3.0
+    assert not df["stall"].any()
+    assert not df["eta_signal"].any()
+    assert not df["eta_model"].any()
