@@ -240,7 +240,12 @@ def cmd_campaign(args) -> int:
     _set_precision(cfg.campaign.precision)
     from mcfdd import plots, report
 
-    out = Path(args.out) if args.out else io.default_out_dir("campaign", args.config)
+    if args.out:
+        out = Path(args.out)
+    elif args.resume:
+        out = io.default_out_dir("campaign", args.config)
+    else:
+        out = io.unused_out_dir("campaign", args.config)
     _prepare_campaign_dir(out, cfg, args.resume)
     try:
         df, names, meta = run_campaign(cfg, out, args.resume)
@@ -480,7 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
     p = sub.add_parser("campaign", help="Monte-Carlo campaign over a scenario space: FAR, MDR, detection times")
     p.add_argument("config", help="TOML config, e.g. configs/loe_campaign.toml")
-    p.add_argument("--out", help="output folder (default results/campaign-<config>)")
+    p.add_argument("--out", help="output folder (default: a new results/campaign-<config>[-N])")
     p.add_argument("--scenarios", type=int, help="override campaign.scenarios")
     p.add_argument("--seed", type=int, help="override campaign.seed")
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")

@@ -335,6 +335,10 @@ class LoeDetectionConfig:
     confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="a decoded model must persist this long to be decided")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (1 disables)")
+    linear_range_deg: float = spec(3.5, lo=0.0, lo_open=True, doc="residuals are not evaluated while |u_c - u| "
+                                   "exceeds this (servo-valve current saturation at i_max / Kp = 4 deg)")
+    stall_hold_s: float = spec(3.0, lo=0.0, hi=60.0, doc="no LOE decision while a stall load is identified "
+                               "and this long after")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -383,7 +387,8 @@ class FddConfig:
         return system.FddParams(
             loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
                                  excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
-                                 max_load_fraction=loe.max_load_fraction),
+                                 max_load_fraction=loe.max_load_fraction,
+                                 linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
             stall=system.StallParams(
                 pole=stl.pole_1_s, evaluator=stl.evaluator.params(), tau=stl.tau_deg * deg,
                 signal=stall.SignalRules(stl.signal.rate_min_deg_s * deg, stl.signal.command_min_deg * deg,
@@ -754,3 +759,162 @@ class LpvFitConfig:
             if field.name != "kind":
                 cols[field.name] = np.array([getattr(m, field.name) for m in listed])
         return space.to_scenario(cols, dtype).manoeuvre
+
+
+# --------------------------------------------------------------------------------------------
+# Worst-case search and tuning of the detection bounds (``mcfdd worst-case``, ``mcfdd tune``)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SearchSettings:
+    """Multi-start projected gradient search of one detection bound, eqs. (26)-(27)."""
+
+    detector: str = spec("stall", choices=("stall", "loe"))
+    bound: str = spec("free", choices=("free", "detect"),
+                      doc="free: tau_f of eq. (26), maximised over fault-free runs; detect: tau_d of eq. (27), minimised")
+    screening: int = spec(64, lo=1, hi=100_000, doc="Sobol points screened; the worst ones start the gradient search")
+    starts: int = spec(4, lo=1, hi=10_000)
+    iterations: int = spec(20, lo=1, hi=10_000, doc="gradient steps per start")
+    learning_rate: float = spec(0.05, lo=0.0, lo_open=True, hi=1.0, doc="Adam step in the unit cube")
+    temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
+                              doc="smooth maximum over time, in log units of the statistic (0.05: about 5 %)")
+
+
+def _fault_kinds(space_cfg: SpaceConfig) -> tuple[str, ...]:
+    axis = space_cfg.axis("fault_kind")
+    return axis.values if axis else (space.DEFAULTS["fault_kind"],)
+
+
+def _check_as_campaign(cfg: CampaignConfig, section: str):
+    """Scenario-space checks of a campaign, with errors naming ``section`` instead of ``campaign``."""
+    try:
+        cfg.check("")
+    except ConfigError as err:
+        raise ConfigError(str(err).replace("campaign.", f"{section}.", 1)) from None
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class WorstCaseConfig:
+    """``mcfdd worst-case``: tau_f or tau_d of one detector by gradient search, against Monte Carlo."""
+
+    simulation: SimulationConfig = spec(SimulationConfig(), doc="horizon, sample time and precision of every run; "
+                                                                "seed draws the screening (Monte Carlo: seed + 1)")
+    search: SearchSettings = spec(SearchSettings())
+    evaluation: EvaluationConfig = spec(EvaluationConfig())
+    plant: PlantConfig = spec(PlantConfig())
+    fdd: FddConfig = spec(FddConfig())
+    space: SpaceConfig = spec(SpaceConfig())
+
+    def check(self, path):
+        s = self.search
+        if s.starts > s.screening:
+            raise ConfigError(f"search.starts: {s.starts} exceeds search.screening = {s.screening}")
+        if not any(a.kind == "range" for a in self.space.axes):
+            raise ConfigError("space: no continuous axis ([lo, hi]) to search")
+        kinds = _fault_kinds(self.space)
+        if s.bound == "free" and set(kinds) != {"none"}:
+            raise ConfigError(f"space.fault_kind: {list(kinds)}; the false-alarm bound (search.bound = 'free') is taken "
+                              f"over fault-free runs, so fault_kind must be \"none\"")
+        if (s.detector, s.bound) == ("loe", "detect") and not set(kinds) <= set(space.PARAMETRIC):
+            raise ConfigError(f"space.fault_kind: {list(kinds)}; the LOE detection bound needs parametric faults, one "
+                              f"of {', '.join(space.PARAMETRIC)}")
+        _check_as_campaign(CampaignConfig(evaluation=self.evaluation, plant=self.plant, fdd=self.fdd, space=self.space),
+                           "search")
+
+    def search_space(self):
+        """The space split for the search (:class:`mcfdd.analysis.worst_case.SearchSpace`)."""
+        from mcfdd.analysis import worst_case
+
+        return worst_case.SearchSpace.from_axes(self.space.axes, self.plant.aircraft.max_mach, _SIZE_COLUMNS)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TuneSettings:
+    """Gradient tuning of one detector's evaluator (and pole) for the largest detection gap."""
+
+    detector: str = spec("stall", choices=("stall", "loe"))
+    iterations: int = spec(60, lo=1, hi=100_000)
+    learning_rate: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0, doc="Adam step on the parameters' logarithms")
+    temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
+                              doc="smooth maximum/minimum over time and runs, in log units of the statistic")
+    margin: float = spec(0.2, lo=0.0, hi=1.0, doc="tau = tau_f + margin (tau_d - tau_f); small: fast detection")
+    tune_pole: bool = spec(True, doc="tune the filter pole a besides alpha, beta, gamma")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TuneConfig:
+    """``mcfdd tune``: evaluator tuning on a training campaign, checked on a held-out one.
+
+    Both campaigns draw from the same [space] with their own settings; they must differ in seed.
+    """
+
+    tune: TuneSettings = spec(TuneSettings())
+    training: CampaignSettings = spec(CampaignSettings(scenarios=256, duration_s=20.0))
+    validation: CampaignSettings = spec(CampaignSettings(scenarios=256, seed=1, duration_s=40.0))
+    evaluation: EvaluationConfig = spec(EvaluationConfig())
+    plant: PlantConfig = spec(PlantConfig())
+    fdd: FddConfig = spec(FddConfig())
+    space: SpaceConfig = spec(SpaceConfig())
+
+    def check(self, path):
+        if self.validation.seed == self.training.seed:
+            raise ConfigError(f"validation.seed: {self.validation.seed} equals training.seed; the held-out campaign "
+                              f"needs its own seed")
+        if self.validation.precision != self.training.precision:
+            raise ConfigError(f"validation.precision: {self.validation.precision!r} differs from training.precision "
+                              f"{self.training.precision!r}")
+        for split in ("training", "validation"):
+            _check_as_campaign(self.campaign(split), split)
+
+    def campaign(self, split: str, fdd: FddConfig | None = None) -> CampaignConfig:
+        """The 'training' or 'validation' campaign, optionally with other FDD settings."""
+        return CampaignConfig(campaign=getattr(self, split), evaluation=self.evaluation, plant=self.plant,
+                              fdd=fdd or self.fdd, space=self.space)
+
+
+def to_toml(data: dict) -> str:
+    """TOML text of nested tables of numbers, strings, booleans and lists (sub-tables after keys)."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        raise TypeError(f"cannot write {type(v).__name__} {v!r} as TOML")
+
+    def table(name, d, lines):
+        scalars = {k: v for k, v in d.items() if not isinstance(v, dict) and v is not None}
+        if name:
+            lines.append(f"[{name}]")
+        lines.extend(f"{k} = {value(v)}" for k, v in scalars.items())
+        for k, v in d.items():
+            if isinstance(v, dict):
+                lines.append("")
+                table(f"{name}.{k}" if name else k, v, lines)
+
+    lines: list[str] = []
+    table("", data, lines)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def fdd_fragment(fdd: FddConfig, comment: str = "") -> str:
+    """A config fragment holding only an [fdd] table (``mcfdd campaign --fdd FILE``)."""
+    header = "".join(f"# {line}\n" for line in comment.splitlines())
+    return header + to_toml({"fdd": to_dict(fdd)})
+
+
+def load_fdd_fragment(path) -> FddConfig:
+    """The [fdd] table of a fragment file, parsed like a config's; errors name the file and key."""
+    data = load_toml(path)
+    try:
+        extra = sorted(set(data) - {"fdd"})
+        if extra:
+            raise ConfigError(f"{extra[0]}: unknown key; an FDD fragment holds only an [fdd] table")
+        if "fdd" not in data:
+            raise ConfigError("fdd: missing required key")
+        return _convert(FddConfig, data["fdd"], "fdd", _NO_META)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None

@@ -67,6 +67,16 @@ def default_out_dir(command: str, config_path) -> Path:
     return Path("results") / f"{command}-{Path(config_path).stem}"
 
 
+def unused_out_dir(command: str, config_path) -> Path:
+    """``results/<command>-<config>``, or the first of ``...-2``, ``...-3``, ... not yet there."""
+    base = default_out_dir(command, config_path)
+    candidate, i = base, 1
+    while candidate.exists():
+        i += 1
+        candidate = base.with_name(f"{base.name}-{i}")
+    return candidate
+
+
 def write_text(path, text: str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

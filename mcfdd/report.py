@@ -96,8 +96,9 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     LOE bank (units of theta / ||u||): tau_f = sup of the fault-free filter's ratio before any fault
     (no fault model can be decided while it is below tau); tau_d = inf over faulty runs of the peak,
     within the detection window, of the smallest ratio among the filters that must fire.
-    Stall detector (deg): tau_f = sup of theta outside stall loads before any fault; tau_d = inf over
-    relevant stall events of the peak theta within the stall window after onset.
+    Stall detector (deg): tau_f = sup of theta over runs without any stall load, before any fault
+    (the evaluator remembers a stall for about 1/gamma); tau_d = inf over relevant stall events of
+    the peak theta within the stall window after onset.
     """
     ok = df["status"] == 0
     ids = df["scenario_id"].to_numpy()
@@ -105,7 +106,8 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     rows = []
     for name, free, detect, scale in (
         ("loe_bank", df["loe_ratio0_max_pre"].where(ok), df["loe_others_min_peak"].where(faulty), 1.0),
-        ("stall_detector", df["stall_theta_max_free"].where(ok), df["stall_theta_peak_min"].where(ok), deg_per_m),
+        ("stall_detector", df["stall_theta_max_free"].where(ok & ~df["stall_seen"]), df["stall_theta_peak_min"].where(ok),
+         deg_per_m),
     ):
         tau_f, f_id = metrics.bound_with_witness(free.to_numpy() * scale, ids, "sup")
         tau_d, d_id = metrics.bound_with_witness(detect.to_numpy() * scale, ids, "inf")

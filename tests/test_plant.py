@@ -487,3 +487,11 @@ def test_run_does_not_depend_on_its_batch(model, mixed_batch):
     elsewhere = simulate.plant_batch(model, batch.stack([runs[3]] + others, np.float64), keys, MIXED_STEPS, DT_S, 4,
                                      kinds)
     _assert_same_outputs(_run(elsewhere, 0), _run(batched, 3))
+
+
+@pytest.mark.parametrize("altitude_m", [0.0, 3000.0, 11000.0, 15000.0])
+def test_calibrated_airspeed_inverts_mach(altitude_m):
+    """calibrated_airspeed(mach(v, h), h) == v over the subsonic range."""
+    v = np.linspace(40.0, 220.0, 7)
+    m = np.asarray(atmosphere.mach(v, altitude_m))
+    np.testing.assert_allclose(np.asarray(atmosphere.calibrated_airspeed(m, altitude_m)), v, rtol=1e-10)

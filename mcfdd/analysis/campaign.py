@@ -206,6 +206,7 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
         "stall_worst_latency_model_s": red.worst_latency_model, "stall_theta_peak_min": red.theta_peak_min,
         "eta_outside_signal_time_s": red.eta_outside_signal, "eta_outside_model_time_s": red.eta_outside_model,
         "stall_theta_max_free": red.theta_stall_max_free,
+        "stall_seen": jnp.isfinite(red.last_stall_end),
     }
 
 

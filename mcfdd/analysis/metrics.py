@@ -77,6 +77,7 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "detected_model": np.where(detected, det_model, -1),
         "identified_correctly": correct,
         "stall_events": n_events,
+        "stall_seen": np.asarray(raw["stall_seen"]),
         "stall_identified_signal": np.asarray(raw["stall_identified_signal"]),
         "stall_identified_model": np.asarray(raw["stall_identified_model"]),
         "stall_worst_latency_signal_s": _finite_or_nan(raw["stall_worst_latency_signal_s"]),

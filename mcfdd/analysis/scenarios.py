@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.stats import qmc
 
 from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres, turbulence
@@ -112,10 +111,7 @@ class Axis:
 
 def mach_limit_speed_kt(altitude_m, max_mach: float):
     """Calibrated airspeed (kt) at which the Mach limit is reached, per altitude."""
-    def one(h):
-        return brentq(lambda v: float(atmosphere.mach(v * atmosphere.KT_TO_M_S, h)) - max_mach, 10.0, 2000.0)
-
-    return np.vectorize(one, otypes=[float])(altitude_m)
+    return np.asarray(atmosphere.calibrated_airspeed(max_mach, np.asarray(altitude_m, float))) / atmosphere.KT_TO_M_S
 
 
 def unit_sample(design: str, dim: int, n: int, seed: int) -> np.ndarray:
@@ -162,8 +158,7 @@ def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_
             cols[a.name] = a.from_unit(uj)
     n = len(cells) * per_cell
     altitude = np.asarray(cols.get("altitude_m", np.full(n, DEFAULTS["altitude_m"])), dtype=float)
-    v_max = mach_limit_speed_kt(np.unique(altitude), max_mach)
-    v_max = v_max[np.searchsorted(np.unique(altitude), altitude)]
+    v_max = mach_limit_speed_kt(altitude, max_mach)
     if "_u_vcas" in cols:
         a = by_name["vcas_kt"]
         cols["vcas_kt"] = a.lo + cols.pop("_u_vcas") * (np.minimum(a.hi, v_max) - a.lo)

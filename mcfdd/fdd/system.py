@@ -5,7 +5,12 @@
   signature decoding into a detected model id. The affine gains of eq. (4) cannot follow the
   square-root fall of the gain towards a stall load, so residuals are evaluated only while the
   bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
-  no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction``.
+  no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction`` and the tracking
+  error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
+  which no first-order model follows). While a stall
+  load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
+  made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
+  stall do not raise LOE alarms.
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
   evaluator and decision (25), and both identification methods of Section 5.4.
 
@@ -30,6 +35,8 @@ class LoeParams(NamedTuple):
     excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
+    linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
+    stall_hold_s: float  # no LOE decision while a stall load is identified and this long after
 
 
 class StallParams(NamedTuple):
@@ -51,6 +58,7 @@ class FddState(NamedTuple):
     band: jnp.ndarray
     band_xi: jnp.ndarray
     confirm: tuple
+    since_stall: jnp.ndarray
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
     signal: stall.SignalState
@@ -97,6 +105,7 @@ def init(params: FddParams, u0, u_c0) -> FddState:
         band=decision.excitation_init(u_c0),
         band_xi=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
+        since_stall=jnp.asarray(jnp.inf, u0.dtype),
         stall_xq=residual.init(u0),
         stall_xi=jnp.zeros_like(u0),
         signal=stall.signal_init(u0),
@@ -113,21 +122,23 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
 
     bank_xq, r = residual.step(state.bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
     load = load_fraction(bank, k)
-    valid = jnp.abs(load) <= loe.max_load_fraction
+    valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, jnp.where(valid, r, 0.0), dt_s)
     band, bp = decision.excitation_step(state.band, u_c, loe.pole, bank.k0[0], dt_s)
     band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, jnp.where(valid, bp, 0.0), dt_s)
     iota = decision.signature(theta, theta_u, loe.tau)
     excited = theta_u >= loe.excitation_floor
-    decoded = decision.decode(iota, excited)
-    confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
-
     stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
     stall_xi, theta_stall = evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s)
     iota_stall = decision.threshold(theta_stall, stl.tau)
     signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
+    since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, stall_xq, stall_xi, signal, model)
+    stall_aware = since_stall <= loe.stall_hold_s
+    decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
+    confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
+
+    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, since_stall, stall_xq, stall_xi, signal, model)
     return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, r_stall, theta_stall, iota_stall, eta_signal,
                            eta_model, theta_sl)

@@ -61,6 +61,13 @@ def mach(vcas_m_s, altitude_m):
     return jnp.sqrt(5.0 * ((qc / pressure + 1.0) ** (2.0 / 7.0) - 1.0))
 
 
+def calibrated_airspeed(mach_number, altitude_m):
+    """Calibrated airspeed (m/s) of a Mach number at an altitude: the pitot relations inverted."""
+    _, pressure, _, _ = isa(altitude_m)
+    qc = pressure * ((1.0 + 0.2 * jnp.asarray(mach_number) ** 2) ** 3.5 - 1.0)
+    return A0_M_S * jnp.sqrt(5.0 * ((qc / P0_PA + 1.0) ** (2.0 / 7.0) - 1.0))
+
+
 def flight_condition(vcas_m_s, altitude_m):
     """Dynamic pressure (Pa), Mach number and true airspeed (m/s) of a flight point."""
     _, pressure, _, sound = isa(altitude_m)

@@ -1,0 +1,589 @@
+"""Worst-case search for the detection bounds of Section 5.3 by gradient through the simulation.
+
+The false-alarm bound (26) is ``tau_f = sup theta`` over fault-free operation, the detection bound
+(27) ``tau_d = inf theta`` over the detection window of the relevant faulty situations; the paper
+names global worst-case optimisation as the adequate way to compute both and gridding or Monte
+Carlo as the cheap approximations. Here the closed loop and the FDD are differentiable, so the
+worst case is searched by multi-start projected gradient ascent (Adam, optax) over the continuous
+scenario parameters, from the best points of a Sobol screening.
+
+Statistics, per detector, follow the campaign reductions (:mod:`mcfdd.analysis.campaign`) and
+:func:`mcfdd.report.gaps`:
+
+- stall detector, free: theta_stall outside stall loads, after the settling time, before any
+  fault; detect: per relevant stall event the peak of theta_stall within ``stall_window_s`` of
+  the onset, smallest over the run's events;
+- LOE bank, free: the fault-free filter's ratio theta_0 / ||u|| on excited samples before any
+  fault; detect: over the detection window, the peak of the smallest ratio among the filters that
+  must fire (those not accepted for the true fault).
+
+The hard values come from the campaign's own reductions, run in the same scan. For gradients the
+max and min are replaced by smooth ones on the logarithm of the statistic: an online log-sum-exp
+``T log sum exp(log(theta) / T)`` carried through the scan with a running shift (stable, and the
+shift does not enter the gradient), so the temperature T is relative (0.05: about 5 %) and the
+same for every detector. As T -> 0 the smooth values tend to the hard ones.
+
+Search space: the ``range`` axes of a campaign's scenario space, mapped from the unit cube as
+:func:`mcfdd.analysis.scenarios.design_table` does (Vcas between its lower bound and the smaller of
+its upper bound and the Mach-limit speed at the altitude, here interpolated on an altitude grid so
+that the map is differentiable); the projection is a clip to [0, 1]. Categorical and discrete axes
+are held fixed per start, at the values of its screening point. The scenario's random numbers are
+fixed by its key, so the objective is deterministic. :func:`mcfdd.analysis.scenarios.to_scenario`
+is affine in every continuous column once the categorical ones are fixed, so a point's traced
+scenario is ``S(x0) + J (x - x0)`` with S(x0) and J taken from ``to_scenario`` itself: tables and
+searches share one conversion.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from mcfdd.analysis import campaign, scenarios
+from mcfdd.analysis.simulate import run_keys, scan_steps
+from mcfdd.fdd import system
+from mcfdd.plant import closed_loop, manoeuvres
+
+LOG_FLOOR = 1e-20  # statistics are floored here before the logarithm
+MACH_GRID_POINTS = 129
+DETECTORS = ("stall", "loe")
+BOUNDS = ("free", "detect")
+# campaign outcome holding the hard value of each (detector, bound); the LOE ones take filter 0
+HARD_OUTCOME = {("stall", "free"): "stall_theta_max_free", ("stall", "detect"): "stall_theta_peak_min",
+                ("loe", "free"): "ratio_max_pre", ("loe", "detect"): "others_min_peak"}
+
+
+# --------------------------------------------------------------------------------------------
+# Smooth extremes
+
+
+class SoftMax(NamedTuple):
+    """Online log-sum-exp: ``value = shift + T log(total)``, ``total = sum exp((x_i - shift) / T)``.
+
+    ``shift`` is the running maximum, held out of the gradient (the value does not depend on it).
+    """
+
+    shift: jnp.ndarray
+    total: jnp.ndarray
+
+
+def softmax_init(dtype) -> SoftMax:
+    return SoftMax(jnp.asarray(-jnp.inf, dtype), jnp.asarray(0.0, dtype))
+
+
+def softmax_step(acc: SoftMax, x, mask, temperature) -> SoftMax:
+    """Fold ``x`` into the accumulator where ``mask`` holds."""
+    x_in = jnp.where(mask, x, -jnp.inf)
+    shift = jax.lax.stop_gradient(jnp.maximum(acc.shift, x_in))
+    ref = jnp.where(jnp.isfinite(shift), shift, 0.0)
+    rescale = jnp.exp(jnp.where(jnp.isfinite(acc.shift), acc.shift - ref, -jnp.inf) / temperature)
+    term = jnp.where(mask, jnp.exp((jnp.where(mask, x, ref) - ref) / temperature), 0.0)
+    return SoftMax(shift, acc.total * rescale + term)
+
+
+def softmax_value(acc: SoftMax, temperature):
+    """Smooth maximum of the folded values; -inf if none was folded."""
+    some = acc.total > 0.0
+    return jnp.where(some, acc.shift + temperature * jnp.log(jnp.where(some, acc.total, 1.0)), -jnp.inf)
+
+
+def soft_max(x, mask, temperature, axis=-1):
+    """Smooth maximum over ``axis`` of the masked ``x`` (-inf where nothing is masked in)."""
+    shift = jax.lax.stop_gradient(jnp.max(jnp.where(mask, x, -jnp.inf), axis=axis, keepdims=True))
+    ref = jnp.where(jnp.isfinite(shift), shift, 0.0)
+    total = jnp.sum(jnp.where(mask, jnp.exp((jnp.where(mask, x, ref) - ref) / temperature), 0.0), axis=axis)
+    return softmax_value(SoftMax(jnp.squeeze(ref, axis), total), temperature)
+
+
+def soft_min(x, mask, temperature, axis=-1):
+    """Smooth minimum, ``-soft_max(-x)`` (+inf where nothing is masked in)."""
+    return -soft_max(-x, mask, temperature, axis)
+
+
+def log_stat(value):
+    """log of a non-negative statistic, floored at LOG_FLOOR."""
+    return jnp.log(jnp.maximum(value, LOG_FLOOR))
+
+
+# --------------------------------------------------------------------------------------------
+# Smooth statistics carried beside the campaign reductions
+
+
+class Soft(NamedTuple):
+    """Smooth counterparts of the campaign's bounds, in log units."""
+
+    stall_free: SoftMax
+    stall_event: SoftMax
+    stall_detect: SoftMax  # soft maximum of minus the event peaks: a soft minimum over events
+    loe_free: SoftMax
+    loe_detect: SoftMax
+
+
+def soft_init(dtype) -> Soft:
+    return Soft(*(softmax_init(dtype) for _ in Soft._fields))
+
+
+def soft_step(s: campaign.Settings, truth: campaign.Truth, temperature, acc: Soft, before: campaign.Reduction,
+              after: campaign.Reduction, t, plant: closed_loop.PlantOutputs, fdd: system.FddOutputs) -> Soft:
+    """Fold one sample, given the campaign reduction ``before`` and ``after`` this sample.
+
+    The sample masks are those of :func:`mcfdd.analysis.campaign.reduction_step`; events, their
+    onsets and their relevance are read from the reduction itself.
+    """
+    settled = t >= s.settle_s
+    clear_of_stall = ~plant.stall & (t - after.last_stall_end > s.stall_grace_s)
+    quiet = settled & (t < truth.onset_s) & clear_of_stall
+    closed_relevant = after.n_events > before.n_events
+    stall_detect = softmax_step(acc.stall_detect, -softmax_value(acc.stall_event, temperature), closed_relevant,
+                                temperature)
+    opening = after.in_event & ~before.in_event
+    event = jax.tree.map(lambda fresh, old: jnp.where(opening, fresh, old), softmax_init(acc.stall_event.total.dtype),
+                         acc.stall_event)
+    in_window = plant.stall & after.in_event & (t - after.event_start <= s.stall_window_s)
+    log_theta_stall = log_stat(fdd.theta_stall)
+
+    log_ratio = log_stat(fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0))
+    detect_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s) & fdd.excited
+    must_fire = soft_min(log_ratio, ~truth.accept, temperature)
+    return Soft(
+        stall_free=softmax_step(acc.stall_free, log_theta_stall, quiet, temperature),
+        stall_event=softmax_step(event, log_theta_stall, in_window, temperature),
+        stall_detect=stall_detect,
+        loe_free=softmax_step(acc.loe_free, log_ratio[0], quiet & fdd.excited, temperature),
+        loe_detect=softmax_step(acc.loe_detect, must_fire, detect_window, temperature),
+    )
+
+
+def soft_finalize(acc: Soft, before: campaign.Reduction, outcomes: dict, temperature) -> dict:
+    """Smooth bounds of a run (log units) once the campaign has closed an event open at the end.
+
+    ``before`` is the reduction at the end of the scan, ``outcomes`` :func:`campaign.finalize` of it.
+    Keys ``stall_free``, ``stall_detect``, ``loe_free``, ``loe_detect``; -inf (free) or +inf
+    (detect) where the run has no sample that counts.
+    """
+    closed_relevant = outcomes["stall_events"] > before.n_events
+    stall_detect = softmax_step(acc.stall_detect, -softmax_value(acc.stall_event, temperature), closed_relevant,
+                                temperature)
+    return {"stall_free": softmax_value(acc.stall_free, temperature),
+            "stall_detect": -softmax_value(stall_detect, temperature),
+            "loe_free": softmax_value(acc.loe_free, temperature),
+            "loe_detect": softmax_value(acc.loe_detect, temperature)}
+
+
+def hard_value(outcomes: dict, detector: str, bound: str):
+    """The campaign's hard bound of a run (rod units for the stall detector, ratio for the LOE bank)."""
+    value = outcomes[HARD_OUTCOME[(detector, bound)]]
+    return value[..., 0] if (detector, bound) == ("loe", "free") else value
+
+
+# --------------------------------------------------------------------------------------------
+# Search space
+
+
+class Box(NamedTuple):
+    """Unit cube to column values. Arrays over the d continuous axes, Mach-limit table (kt over m)."""
+
+    lo: jnp.ndarray
+    hi: jnp.ndarray
+    vcas: jnp.ndarray  # (d,) true for the vcas_kt axis
+    altitude: jnp.ndarray  # (d,) one-hot of the altitude_m axis (zeros if it is not continuous)
+    grid_altitude_m: jnp.ndarray
+    grid_vmax_kt: jnp.ndarray
+
+
+class Anchor(NamedTuple):
+    """One point's fixed part: its categorical values, as the affine map x -> (scenario, onset)."""
+
+    x0: jnp.ndarray  # (d,) column values the map is taken at
+    scenario: closed_loop.Scenario  # at x0
+    jacobian: closed_loop.Scenario  # leaves with a trailing (d,) axis: change per unit of each column
+    onset_s: jnp.ndarray  # fault onset at x0 (inf without a fault)
+    onset_jacobian: jnp.ndarray  # (d,)
+    accept: jnp.ndarray  # (N,) acceptable identifications at x0
+    altitude_m: jnp.ndarray  # altitude if it is not a continuous axis
+
+
+def to_columns(box: Box, altitude_m, u):
+    """Column values (d,) of a point u in [0, 1]^d, as :func:`scenarios.design_table` maps them.
+
+    ``altitude_m`` is the point's altitude when altitude is not a continuous axis.
+    """
+    span = box.hi - box.lo
+    plain = box.lo + u * span
+    altitude = jnp.where(jnp.any(box.altitude > 0), jnp.sum(box.altitude * plain), altitude_m)
+    vmax = jnp.interp(altitude, box.grid_altitude_m, box.grid_vmax_kt)
+    return jnp.where(box.vcas, box.lo + u * (jnp.minimum(box.hi, vmax) - box.lo), plain)
+
+
+def scenario_at(anchor: Anchor, x):
+    """Traced (Scenario, onset) at column values x (d,): ``S(x0) + J (x - x0)``."""
+    dx = x - anchor.x0
+
+    def leaf(base, jac):
+        if not jnp.issubdtype(base.dtype, jnp.floating):
+            return base
+        return base + jnp.dot(jac, dx.astype(jac.dtype))
+
+    return jax.tree.map(leaf, anchor.scenario, anchor.jacobian), anchor.onset_s + jnp.dot(anchor.onset_jacobian, dx)
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchSpace:
+    """A campaign's scenario space split for the search.
+
+    ``continuous``: the 'range' axes (the unit cube searched); ``categorical``: the other varying
+    axes (choices and discrete values), held fixed per point; ``constants``: const axes.
+    ``size_columns`` maps a fault kind to the column holding its size (as in the campaign design).
+    """
+
+    continuous: tuple
+    categorical: tuple
+    constants: dict
+    size_columns: dict
+    max_mach: float
+
+    @classmethod
+    def from_axes(cls, axes, max_mach: float, size_columns: dict) -> "SearchSpace":
+        return cls(tuple(a for a in axes if a.kind == "range"),
+                   tuple(a for a in axes if a.kind in ("choices", "values")),
+                   {a.name: a.values[0] for a in axes if a.kind == "const"}, dict(size_columns), max_mach)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.continuous)
+
+    @property
+    def dim(self) -> int:
+        return len(self.continuous)
+
+    def _extent(self, name: str) -> tuple[float, float]:
+        """Smallest and largest value the space gives column ``name``."""
+        for a in self.continuous:
+            if a.name == name:
+                return a.lo, a.hi
+        for a in self.categorical:
+            if a.name == name:
+                return min(a.values), max(a.values)
+        value = self.constants.get(name, scenarios.DEFAULTS[name])
+        return value, value
+
+    def box(self, dtype) -> Box:
+        lo, hi = self._extent("altitude_m")
+        grid = np.linspace(lo, hi, MACH_GRID_POINTS) if hi > lo else np.array([lo, lo + 1.0])
+        f = np.dtype(dtype)
+        return Box(lo=jnp.asarray([a.lo for a in self.continuous], f), hi=jnp.asarray([a.hi for a in self.continuous], f),
+                   vcas=jnp.asarray([n == "vcas_kt" for n in self.names]),
+                   altitude=jnp.asarray([float(n == "altitude_m") for n in self.names], f),
+                   grid_altitude_m=jnp.asarray(grid, f),
+                   grid_vmax_kt=jnp.asarray(scenarios.mach_limit_speed_kt(grid, self.max_mach), f))
+
+    def categories(self, u_cat) -> dict:
+        """Categorical columns of points drawn as u_cat (P, k) in [0, 1)^k (``Axis.from_unit``)."""
+        u_cat = np.asarray(u_cat).reshape(-1, len(self.categorical))
+        return {a.name: a.from_unit(u_cat[:, j]) for j, a in enumerate(self.categorical)}
+
+    def table(self, categories: dict, x) -> dict:
+        """Scenario-table columns (P rows) of points with categorical values and column values x (P, d).
+
+        Fault sizes are combined per kind into ``fault_size`` as in the campaign design.
+        """
+        x = np.asarray(x, dtype=float).reshape(-1, self.dim)
+        n = x.shape[0]
+        cols = {name: np.full(n, value) for name, value in self.constants.items()}
+        cols.update({k: np.asarray(v) for k, v in categories.items()})
+        cols.update({name: x[:, j] for j, name in enumerate(self.names)})
+        kind = np.asarray(cols.get("fault_kind", np.full(n, scenarios.DEFAULTS["fault_kind"])))
+        size = np.zeros(n)
+        for fault, column in self.size_columns.items():
+            if column in cols:
+                size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
+        if any(c in self.constants or c in categories or c in self.names for c in self.size_columns.values()):
+            cols["fault_size"] = size
+        return cols
+
+    def anchors(self, categories: dict, x0, nu_bank, dtype) -> Anchor:
+        """Anchors (leading axis P) of points with categorical values and column values x0 (P, d)."""
+        x0 = np.asarray(x0, dtype=float).reshape(-1, self.dim)
+        n, d = x0.shape
+        steps = np.concatenate([np.zeros((1, d)), np.eye(d)])  # (d + 1, d)
+        x_all = (x0[:, None, :] + steps[None]).reshape(n * (d + 1), d)
+        cats = {k: np.repeat(np.asarray(v), d + 1) for k, v in categories.items()}
+        cols = self.table(cats, x_all)
+        rows = n * (d + 1)
+        scen = scenarios.to_scenario(cols, np.float64)
+        onset = scenarios.fault_onsets(cols, rows)
+
+        def split(leaf):
+            leaf = np.asarray(leaf).reshape(n, d + 1)
+            base = leaf[:, 0]
+            if not np.issubdtype(leaf.dtype, np.floating):
+                return base, np.zeros((n, d), dtype=dtype)
+            with np.errstate(invalid="ignore"):
+                jac = leaf[:, 1:] - base[:, None]
+            return base.astype(dtype), np.nan_to_num(jac, nan=0.0).astype(dtype)
+
+        base = jax.tree.map(lambda leaf: split(leaf)[0], scen)
+        jac = jax.tree.map(lambda leaf: split(leaf)[1], scen)
+        onset_base, onset_jac = split(onset)
+        first = {k: np.asarray(v)[:: d + 1] for k, v in cols.items()}
+        _, accept = scenarios.true_model(np.asarray(nu_bank), np.asarray(first.get("fault_kind", np.full(n, "none"))),
+                                         np.asarray(first.get("fault_size", np.zeros(n))))
+        altitude = np.asarray(first.get("altitude_m", np.full(n, scenarios.DEFAULTS["altitude_m"])), dtype=dtype)
+        return Anchor(jnp.asarray(x0, dtype), jax.tree.map(jnp.asarray, base), jax.tree.map(jnp.asarray, jac),
+                      jnp.asarray(onset_base), jnp.asarray(onset_jac), jnp.asarray(accept), jnp.asarray(altitude))
+
+    def kinds(self) -> tuple[int, ...]:
+        """Static manoeuvre family codes the space can produce."""
+        axis = next((a for a in self.categorical if a.name == "manoeuvre_kind"), None)
+        names = axis.values if axis else (self.constants.get("manoeuvre_kind", scenarios.DEFAULTS["manoeuvre_kind"]),)
+        return tuple(sorted(manoeuvres.KIND_CODE[k] for k in set(names)))
+
+
+# --------------------------------------------------------------------------------------------
+# One point: plant, FDD, campaign reductions and smooth bounds in one scan
+
+
+def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: campaign.Settings, box: Box,
+              anchor: Anchor, u, key, temperature, n_steps: int, dt_s: float, substeps: int,
+              kinds: tuple[int, ...]):
+    """Simulate the scenario at u (d,). Returns (smooth bounds dict, campaign outcomes dict, columns (d,))."""
+    x = to_columns(box, anchor.altitude_m, u)
+    scenario, onset = scenario_at(anchor, x)
+    truth = campaign.Truth(onset, anchor.accept)
+    params = closed_loop.prepare(model, scenario, dt_s)
+    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    zero = jnp.zeros_like(params.qbar_pa)
+    fdd_state = system.init(fdd_params, zero, zero)
+    red = campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype)
+
+    def body(carry, k, noise):
+        plant_state, fdd_state, red, acc = carry
+        t = k * dt_s
+        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
+        fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
+                                    scenario.altitude_m, t, dt_s)
+        new = campaign.reduction_step(settings, truth, red, t, out, fo)
+        return (plant_state, fdd_state, new, soft_step(settings, truth, temperature, acc, red, new, t, out, fo)), None
+
+    carry = (plant_state, fdd_state, red, soft_init(zero.dtype))
+    (_, _, red, acc), _ = scan_steps(body, carry, key, n_steps, closed_loop.NOISE_DIM)
+    outcomes = campaign.finalize(settings, red, n_steps * dt_s)
+    return soft_finalize(acc, red, outcomes, temperature), outcomes, x
+
+
+STATIC = ("n_steps", "dt_s", "substeps", "kinds")
+
+
+@partial(jax.jit, static_argnames=STATIC)
+def evaluate(model, fdd_params, settings, box, anchors, u, keys, temperature, n_steps: int, dt_s: float,
+             substeps: int, kinds: tuple[int, ...]):
+    """:func:`run_point` over points (leading axis of anchors, u (P, d) and keys), one jit."""
+    def one(anchor, u, key):
+        return run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps, dt_s, substeps, kinds)
+
+    return jax.vmap(one)(anchors, u, keys)
+
+
+def sense(bound: str) -> float:
+    """+1 where the bound is a supremum (searched by ascent), -1 where it is an infimum."""
+    return 1.0 if bound == "free" else -1.0
+
+
+@partial(jax.jit, static_argnames=STATIC + ("detector", "bound"))
+def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperature, n_steps: int, dt_s: float,
+                   substeps: int, kinds: tuple[int, ...], detector: str, bound: str):
+    """Score (smooth bound in log units, sign flipped for an infimum) and its gradient in u, per point.
+
+    Returns (score (P,), (smooth bounds, outcomes, columns), gradient (P, d)).
+    """
+    def one(anchor, u, key):
+        def score(u):
+            soft, outcomes, x = run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps,
+                                          dt_s, substeps, kinds)
+            value = sense(bound) * soft[f"{detector}_{bound}"]
+            return jnp.where(jnp.isfinite(value), value, -jnp.inf), (soft, outcomes, x)
+
+        (value, aux), grad = jax.value_and_grad(score, has_aux=True)(u)
+        return value, aux, jnp.where(jnp.isfinite(grad), grad, 0.0)
+
+    return jax.vmap(one)(anchors, u, keys)
+
+
+# --------------------------------------------------------------------------------------------
+# Projected gradient ascent
+
+
+class History(NamedTuple):
+    """Iterates of a multi-start ascent: u (I + 1, S, d), score (I + 1, S), aux per iteration."""
+
+    u: np.ndarray
+    score: np.ndarray
+    aux: list
+
+
+def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> History:
+    """Multi-start projected Adam ascent on [0, 1]^d.
+
+    ``score_and_grad_fn(u)`` returns (score (S,), aux, gradient (S, d)) for the S starts u (S, d);
+    a score of -inf marks an infeasible point (e.g. no stall event left to measure): that start
+    returns to its best feasible point. ``callback(i, score, aux)`` sees every evaluation.
+    Evaluations: S (iterations + 1).
+    """
+    opt = optax.adam(learning_rate)
+    u = jnp.asarray(u0)
+    state = opt.init(u)
+    best_u, best = u, jnp.full(u.shape[0], -jnp.inf, u.dtype)
+    us, scores, auxes = [], [], []
+    for i in range(iterations + 1):
+        score, aux, grad = score_and_grad_fn(u)
+        us.append(np.asarray(u))
+        scores.append(np.asarray(score))
+        auxes.append(aux)
+        if callback is not None:
+            callback(i, np.asarray(score), aux)
+        if i == iterations:
+            break
+        feasible = jnp.isfinite(score)
+        better = feasible & (score > best)
+        best_u = jnp.where(better[:, None], u, best_u)
+        best = jnp.where(better, score, best)
+        updates, state = opt.update(-grad, state, u)
+        stepped = optax.projections.projection_box(optax.apply_updates(u, updates), 0.0, 1.0)
+        u = jnp.where(feasible[:, None], stepped, best_u)
+    return History(np.stack(us), np.stack(scores), auxes)
+
+
+def unit_points(space: SearchSpace, design: str, n: int, seed: int):
+    """n points of the whole space by a design: (u (n, d) continuous part, categorical columns)."""
+    u = scenarios.unit_sample(design, space.dim + len(space.categorical), n, seed)
+    return u[:, :space.dim], space.categories(u[:, space.dim:])
+
+
+def best_points(values, n: int, bound: str) -> np.ndarray:
+    """Indices of the n most extreme finite values (largest for 'free', smallest for 'detect')."""
+    v = sense(bound) * np.asarray(values, dtype=float)
+    v = np.where(np.isfinite(v), v, -np.inf)
+    return np.argsort(-v, kind="stable")[:n]
+
+
+def extreme(values, bound: str):
+    """Index and value of the worst case (max for 'free', min for 'detect') among finite values; (-1, nan) if none."""
+    v = np.asarray(values, dtype=float)
+    if not np.isfinite(v).any():
+        return -1, math.nan
+    idx = best_points(v, 1, bound)[0]
+    return int(idx), float(v[idx])
+
+
+# --------------------------------------------------------------------------------------------
+# Searches of a problem
+
+
+class Problem(NamedTuple):
+    """A bound to search: simulation, FDD, scoring and space. ``temperature`` in log units."""
+
+    model: closed_loop.PlantModel
+    fdd_params: system.FddParams
+    settings: campaign.Settings
+    space: SearchSpace
+    nu_bank: np.ndarray
+    detector: str
+    bound: str
+    temperature: float
+    n_steps: int
+    dt_s: float
+    substeps: int
+    dtype: type
+
+    def static(self) -> dict:
+        return {"n_steps": self.n_steps, "dt_s": self.dt_s, "substeps": self.substeps, "kinds": self.space.kinds()}
+
+
+class Points(NamedTuple):
+    """Evaluated points: u (P, d), categorical columns, column values x (P, d), the smooth and hard
+    bound (P,) in the statistic's units (rod m for the stall detector) and the campaign outcomes."""
+
+    u: np.ndarray
+    categories: dict
+    x: np.ndarray
+    soft: np.ndarray
+    hard: np.ndarray
+    outcomes: dict
+
+
+def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
+    """Anchors of points u (P, d) with categorical columns, taken at their own column values."""
+    space = problem.space
+    n = np.shape(u)[0]
+    cols = space.table(categories, np.zeros((n, space.dim)))
+    altitude = np.asarray(cols.get("altitude_m", np.full(n, scenarios.DEFAULTS["altitude_m"])), dtype=problem.dtype)
+    x0 = jax.vmap(to_columns, in_axes=(None, 0, 0))(box, jnp.asarray(altitude), jnp.asarray(u, problem.dtype))
+    return space.anchors(categories, np.asarray(x0), problem.nu_bank, problem.dtype)
+
+
+def _points(problem: Problem, u, categories, soft, outcomes, x) -> Points:
+    key = f"{problem.detector}_{problem.bound}"
+    outcomes = {k: np.asarray(v) for k, v in outcomes.items()}
+    return Points(np.asarray(u), categories, np.asarray(x), np.exp(np.asarray(soft[key], dtype=float)),
+                  np.asarray(hard_value(outcomes, problem.detector, problem.bound), dtype=float), outcomes)
+
+
+def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> Points:
+    """Simulate points u (P, d) in batches of ``batch`` (padded, so one compilation serves all)."""
+    box = problem.space.box(problem.dtype)
+    u = np.asarray(u)
+    parts = []
+    for start in range(0, u.shape[0], batch):
+        idx = np.arange(start, min(start + batch, u.shape[0]))
+        padded = np.concatenate([idx, np.repeat(idx[-1:], batch - len(idx))])
+        cats = {k: np.asarray(v)[padded] for k, v in categories.items()}
+        anchors = anchors_at(problem, box, u[padded], cats)
+        soft, outcomes, x = evaluate(problem.model, problem.fdd_params, problem.settings, box, anchors,
+                                     jnp.asarray(u[padded], problem.dtype), keys[padded], problem.temperature,
+                                     **problem.static())
+        parts.append(jax.tree.map(lambda a: np.asarray(a)[:len(idx)], (soft, outcomes, x)))
+    soft, outcomes, x = jax.tree.map(lambda *a: np.concatenate(a), *parts)
+    return _points(problem, u, categories, soft, outcomes, x)
+
+
+def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
+                    callback=None) -> list[Points]:
+    """Projected gradient search (:func:`ascend`) from the starts u0 (S, d) with their categorical
+    columns and keys. Returns the evaluated points of every iteration (iterations + 1 of them);
+    ``callback(i, points)`` sees each."""
+    box = problem.space.box(problem.dtype)
+
+    def score_and_grad_fn(u):
+        anchors = anchors_at(problem, box, u, categories)
+        score, (soft, outcomes, x), grad = score_and_grad(
+            problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype), keys,
+            problem.temperature, detector=problem.detector, bound=problem.bound, **problem.static())
+        return score, _points(problem, u, categories, soft, outcomes, x), grad
+
+    report = None if callback is None else (lambda i, score, points: callback(i, points))
+    return ascend(score_and_grad_fn, u0, iterations, learning_rate, report).aux
+
+
+def sample(problem: Problem, design: str, n: int, seed: int, batch: int) -> Points:
+    """n points of the whole space by a design ('sobol' screening, 'random' Monte Carlo), keys from seed."""
+    u, categories = unit_points(problem.space, design, n, seed)
+    return evaluate_points(problem, u, categories, run_keys(seed, np.arange(n)), batch)
+
+
+def budget(screening: int, starts: int, iterations: int) -> int:
+    """Simulations of a search: the screening and every gradient evaluation of every start."""
+    return screening + starts * (iterations + 1)
+
+
+def starts_from(screened: Points, n: int, bound: str, seed: int):
+    """The n worst screened points as starts: (indices, u (n, d), categorical columns, keys)."""
+    idx = best_points(screened.hard, n, bound)
+    return idx, screened.u[idx], {k: np.asarray(v)[idx] for k, v in screened.categories.items()}, \
+        run_keys(seed, idx)
