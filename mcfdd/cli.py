@@ -155,7 +155,8 @@ def _campaign_config(args) -> config.CampaignConfig:
                 raise config.ConfigError(f"--{flag.replace('_', '-')}: {value} is not allowed; expected "
                                          f"{'a non-negative' if key == 'seed' else 'a positive'} integer")
             overrides[key] = value
-    return dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, **overrides))
+    fdd = config.load_fdd_fragment(args.fdd) if getattr(args, "fdd", None) else cfg.fdd
+    return dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, **overrides), fdd=fdd)
 
 
 def _resolved(cfg: config.CampaignConfig) -> dict:
@@ -400,6 +401,258 @@ def cmd_fit_lpv(args) -> int:
     return 0
 
 
+def _points_frame(space, points, scale: float, value: str, **labels):
+    """One row per evaluated point: labels, scenario columns, hard and smooth bound (scaled)."""
+    import pandas as pd
+
+    table = space.table(points.categories, points.x)
+    n = len(points.hard)
+    return pd.DataFrame({**{k: np.broadcast_to(np.asarray(v), n) for k, v in labels.items()}, **table,
+                         value: points.hard * scale, f"{value}_smooth": points.soft * scale,
+                         "stall_events": points.outcomes["stall_events"], "status": points.outcomes["status"]})
+
+
+def cmd_worst_case(args) -> int:
+    cfg = config.load(config.WorstCaseConfig, args.config)
+    sim, s = cfg.simulation, cfg.search
+    _set_precision(sim.precision)
+    import pandas as pd
+
+    from mcfdd import plots, report
+    from mcfdd.analysis import worst_case
+
+    out = Path(args.out) if args.out else io.default_out_dir("worst-case", args.config)
+    dtype = _dtype(sim.precision)
+    model = cfg.plant.model()
+    r_arm = model.actuator.r_arm_m
+    bank, names = _load_bank(cfg.fdd, dtype)
+    space = cfg.search_space()
+    problem = worst_case.Problem(model, cfg.fdd.params(bank, r_arm), cfg.evaluation.settings(r_arm), space,
+                                 np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
+                                 sim.substeps, dtype)
+    scale, value = (180.0 / math.pi / r_arm, "bound_deg") if s.detector == "stall" else (1.0, "bound_ratio")
+    budget = worst_case.budget(s.screening, s.starts, s.iterations)
+    what = f"{'tau_f (26), largest' if s.bound == 'free' else 'tau_d (27), smallest'} {s.detector} bound"
+    _say(f"worst-case search for {what}: {space.dim} continuous axes, {len(space.categorical)} categorical; "
+         f"{sim.duration_s} s runs ({sim.n_steps} steps, {sim.precision}); budget {budget} simulations")
+    times, frames = {}, []
+    start = time.perf_counter()
+    screened = worst_case.sample(problem, "sobol", s.screening, sim.seed, s.screening)
+    times["screening"] = time.perf_counter() - start
+    frames.append(_points_frame(space, screened, scale, value, method="screening", start=-1, iteration=-1,
+                                index=np.arange(s.screening)))
+    _say(f"  screening: {s.screening} Sobol points in {times['screening']:.1f} s (compilation included), worst "
+         f"{worst_case.extreme(screened.hard * scale, s.bound)[1]:.5g}")
+    idx, u0, cats, keys = worst_case.starts_from(screened, s.starts, s.bound, sim.seed)
+    stamps = [time.perf_counter()]
+
+    def progress(i, points):
+        stamps.append(time.perf_counter())
+        line = " ".join(f"{v:.4g}" for v in points.hard * scale)
+        print(f"\r  gradient iteration {i}/{s.iterations}: {line}   ", end="\n" if i == s.iterations else "",
+              file=sys.stderr, flush=True)
+
+    iterations = worst_case.gradient_search(problem, u0, cats, keys, s.iterations, s.learning_rate, progress)
+    times["gradient"] = stamps[-1] - stamps[0]
+    steps = np.diff(stamps)
+    run_time = float(np.mean(steps[1:]) * len(steps)) if len(steps) > 1 else times["gradient"]
+    for i, points in enumerate(iterations):
+        frames.append(_points_frame(space, points, scale, value, method="gradient", start=idx, iteration=i,
+                                    index=np.arange(s.starts)))
+    start = time.perf_counter()
+    mc = worst_case.sample(problem, "random", budget, sim.seed + 1, s.screening)
+    times["monte_carlo"] = time.perf_counter() - start
+    frames.append(_points_frame(space, mc, scale, value, method="monte_carlo", start=-1, iteration=-1,
+                                index=np.arange(budget)))
+    n_time = int(min(max(budget, round(budget * run_time / max(times["monte_carlo"], 1e-9))), 50 * budget))
+    if n_time > budget:
+        start = time.perf_counter()
+        extra = worst_case.sample(problem, "random", n_time, sim.seed + 1, s.screening, first=budget)
+        times["monte_carlo_extra"] = time.perf_counter() - start
+        frames.append(_points_frame(space, extra, scale, value, method="monte_carlo_extra", start=-1, iteration=-1,
+                                    index=np.arange(budget, n_time)))
+    _say(f"  gradient search {times['gradient']:.1f} s ({run_time:.1f} s without compilation), Monte Carlo "
+         f"{budget} runs {times['monte_carlo']:.1f} s, {n_time} runs (equal run time) "
+         f"{times['monte_carlo'] + times.get('monte_carlo_extra', 0.0):.1f} s")
+    df = pd.concat(frames, ignore_index=True)
+    meta = io.provenance(config.to_json(cfg), sim.seed, models=list(names))
+    summ = report.search_summary(df, value, s.bound, times)
+    parameters = [c for c in df.columns if c not in (value, f"{value}_smooth", "method", "start", "iteration", "index",
+                                                     "status")]
+    notes = [f"Worst case of the {what} over the scenario space of `{args.config}`: {s.screening} Sobol points "
+             f"screened, the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
+             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in log "
+             f"units), against plain Monte Carlo (random design) with the same number of simulations ({budget}) and "
+             f"with as many as run in the gradient search's time without compilation ({n_time}). A gradient "
+             f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
+             f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
+             f"Values in {'deg (theta of the stall detector)' if s.detector == 'stall' else 'theta / ||u||'}."]
+    io.write_table(df, out / "worst_case.parquet", meta)
+    io.write_table(summ, out / "summary.parquet", meta)
+    io.write_text(out / "report.md", report.worst_case_markdown(f"Worst case {Path(args.config).stem}", summ, df, value,
+                                                                s.bound, parameters, notes, meta))
+    label = f"{'tau_f' if s.bound == 'free' else 'tau_d'} candidates, {s.detector} detector ({value})"
+    _save_figure(plots.search_history(df, value, f"{value}_smooth", label, s.bound), out / "history.png")
+    for _, r in summ.iterrows():
+        print(f"{r['method']}: {r['simulations']} simulations, {r['run_time_s']:.1f} s, worst {r[value]:.5g}")
+    print(f"report: {out / 'report.md'}")
+    return 0
+
+
+def _training_set(cfg: config.CampaignConfig, model, bank, dtype):
+    """Plant histories of a campaign's design, simulated once, with what their evaluation needs."""
+    import jax.numpy as jnp
+
+    from mcfdd.analysis import batch, campaign, scenarios, simulate, tuning
+
+    c = cfg.campaign
+    cols, n = cfg.design()
+    kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
+    nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind, np.asarray(cols.get("fault_size", np.zeros(n))))
+    scen = scenarios.to_scenario(cols, dtype)
+    plant = simulate.plant_batch(model, scen, simulate.run_keys(c.seed, range(n)), c.n_steps, c.dt_s, c.substeps,
+                                 batch.kinds_in(scen.manoeuvre.kind))
+    truth = campaign.Truth(jnp.asarray(scenarios.fault_onsets(cols, n), dtype), jnp.asarray(accept))
+    counts = jnp.asarray(np.isin(kind, scenarios.PARAMETRIC) & (nearest > 0))
+    return tuning.TrainingSet(plant, scen.vcas_m_s, scen.altitude_m, truth, counts), n
+
+
+def _tuned_fdd(fdd: config.FddConfig, detector: str, params: dict, tau: float, tune_pole: bool, deg_per_m: float):
+    """FddConfig with a detector's tuned evaluator, pole and threshold (6 significant digits), range-checked."""
+    import dataclasses
+
+    p = {k: float(f"{v:.6g}") for k, v in params.items()}
+    part = getattr(fdd, detector)
+    changes = {"evaluator": config.EvaluatorConfig(alpha=p["alpha"], beta=p["beta"], gamma_1_s=p["gamma_1_s"])}
+    if tune_pole:
+        changes["pole_1_s"] = p["pole_1_s"]
+    if detector == "stall":
+        changes["tau_deg"] = float(f"{tau * deg_per_m:.6g}")
+    else:
+        changes["tau"] = float(f"{tau:.6g}")
+    tuned = dataclasses.replace(fdd, **{detector: dataclasses.replace(part, **changes)})
+    return config.parse(config.FddConfig, config.to_dict(tuned), "fdd")
+
+
+def cmd_tune(args) -> int:
+    cfg = config.load(config.TuneConfig, args.config)
+    ts, tr = cfg.tune, cfg.training
+    _set_precision(tr.precision)
+    import jax
+    import pandas as pd
+
+    from mcfdd import plots, report
+    from mcfdd.analysis import campaign, tuning
+
+    out = Path(args.out) if args.out else io.unused_out_dir("tune", args.config)
+    if out.exists() and any(out.iterdir()):
+        raise config.ConfigError(f"--out: {out} exists and is not empty; choose another folder")
+    det = ts.detector
+    dtype = _dtype(tr.precision)
+    model = cfg.plant.model()
+    r_arm = model.actuator.r_arm_m
+    deg_per_m = 180.0 / math.pi / r_arm
+    scale, units = (deg_per_m, "deg") if det == "stall" else (1.0, "theta/||u||")
+    bank, names = _load_bank(cfg.fdd, dtype)
+    fdd_params = cfg.fdd.params(bank, r_arm)
+    settings = cfg.evaluation.settings(r_arm)
+    start = time.perf_counter()
+    data, n = _training_set(cfg.campaign("training"), model, bank, dtype)
+    jax.block_until_ready(data)
+    t_plant = time.perf_counter() - start
+    _say(f"training set: {n} runs of {tr.duration_s} s simulated once in {t_plant:.1f} s; tuning the {det} detector "
+         f"({'pole, ' if ts.tune_pole else ''}alpha, beta, gamma) over {ts.iterations} iterations")
+    before = {k: float(v) for k, v in tuning.evaluate(fdd_params, settings, data, ts.temperature, tr.dt_s, det).items()}
+
+    def gap_and_grad(theta):
+        return tuning.gap_and_grad(theta, fdd_params, settings, data, ts.temperature, tr.dt_s, det, ts.tune_pole)
+
+    def progress(i, gap, b):
+        if i % 5 and i != ts.iterations:
+            return
+        print(f"\r  iteration {i}/{ts.iterations}: tau_f {b['tau_f'] * scale:.4g}, tau_d {b['tau_d'] * scale:.4g} "
+              f"{units}, normalised gap {tuning.normalised_gap(b['tau_f'], b['tau_d']):.4g}   ",
+              end="\n" if i == ts.iterations else "", file=sys.stderr, flush=True)
+
+    start = time.perf_counter()
+    result = tuning.tune(gap_and_grad, tuning.initial(fdd_params, det), ts.iterations, ts.learning_rate, progress)
+    t_tune = time.perf_counter() - start
+    best = tuning.best_iterate(result)
+    chosen = tuning.natural(result.thetas[best])
+    tau_f, tau_d = result.bounds[best]["tau_f"], result.bounds[best]["tau_d"]
+    scan = None
+    if not tau_d > tau_f:
+        taus = tuning.candidates(tau_f, tau_d, ts.threshold_candidates)
+        trial = _tuned_fdd(cfg.fdd, det, chosen, tau_f, ts.tune_pole, deg_per_m).params(bank, r_arm)
+        start = time.perf_counter()
+        false, missed = tuning.threshold_scan(trial, settings, data, np.asarray(taus, dtype), tr.dt_s, det,
+                                              cfg.fdd.stall.identification)
+        scan = pd.DataFrame({f"tau_{'deg' if det == 'stall' else 'ratio'}": taus * scale,
+                             "training_false_alarms": np.asarray(false), "training_misses": np.asarray(missed)})
+        _say(f"  negative gap: {len(taus)} thresholds compared on the training set in "
+             f"{time.perf_counter() - start:.1f} s")
+    tau = tuning.place_threshold(tau_f, tau_d, ts.margin, *(() if scan is None else (
+        taus, scan["training_false_alarms"], scan["training_misses"])))
+    tuned = _tuned_fdd(cfg.fdd, det, chosen, tau, ts.tune_pole, deg_per_m)
+    history = pd.DataFrame([{"iteration": i, "smooth_log_gap": g, "tau_f": b["tau_f"] * scale,
+                             "tau_d": b["tau_d"] * scale,
+                             "normalised_gap": tuning.normalised_gap(b["tau_f"], b["tau_d"]), **tuning.natural(th)}
+                            for i, (th, g, b) in enumerate(zip(result.thetas, result.gaps, result.bounds))])
+    _say(f"  tuned in {t_tune:.1f} s; iteration {best}: tau_f {tau_f * scale:.4g}, tau_d {tau_d * scale:.4g} {units}, "
+         f"tau {tau * scale:.4g}")
+    old, new = getattr(cfg.fdd, det), getattr(tuned, det)
+    tau_key = "tau_deg" if det == "stall" else "tau"
+    parameters = pd.DataFrame([{"parameter": k, "before": b, "after": a} for k, b, a in (
+        ("alpha", old.evaluator.alpha, new.evaluator.alpha), ("beta", old.evaluator.beta, new.evaluator.beta),
+        ("gamma_1_s", old.evaluator.gamma_1_s, new.evaluator.gamma_1_s), ("pole_1_s", old.pole_1_s, new.pole_1_s),
+        (tau_key, getattr(old, tau_key), getattr(new, tau_key)))])
+    io.write_text(out / "tuned_fdd.toml", config.fdd_fragment(tuned, (
+        f"FDD settings tuned by `mcfdd tune {args.config}` ({det} detector: evaluator"
+        f"{', pole' if ts.tune_pole else ''} and threshold).\n"
+        f"Use with `mcfdd campaign CONFIG --fdd {out / 'tuned_fdd.toml'}`.")))
+
+    frames, stall_taus, compiles = {}, {}, []
+    start = time.perf_counter()
+    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
+        _say(f"held-out campaign, FDD {label} tuning")
+        frames[label], _, _ = run_campaign(cfg.campaign("validation", fdd_cfg), out / "validation" / label)
+        compiles.append(campaign.run_batch._cache_size())
+        stall_taus[label] = fdd_cfg.stall.tau_deg
+    t_val = time.perf_counter() - start
+    validation = report.validation_table(frames, deg_per_m, stall_taus, cfg.evaluation.stall_window_s,
+                                         cfg.fdd.stall.identification)
+    meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
+    io.write_table(history, out / "history.parquet", meta)
+    io.write_table(parameters, out / "parameters.parquet", meta)
+    io.write_table(validation, out / "validation.parquet", meta)
+    if scan is not None:
+        io.write_table(scan, out / "threshold_scan.parquet", meta)
+    notes = [f"Tuning of the {det} detector by gradient through the FDD over {n} stored plant histories of "
+             f"{tr.duration_s} s (training seed {tr.seed}; plant simulated once in {t_plant:.1f} s). Objective: smooth "
+             f"log tau_d - log tau_f (temperature {ts.temperature}), Adam, {ts.iterations} iterations at learning "
+             f"rate {ts.learning_rate} on the parameters' logarithms, {t_tune:.1f} s. The iteration with the largest "
+             f"hard normalised gap on the training set is kept; tau = tau_f + {ts.margin} (tau_d - tau_f) inside a "
+             f"positive gap; otherwise {ts.threshold_candidates} thresholds are compared on the training set by "
+             f"false alarms, then missed detections (campaign definitions, {cfg.fdd.stall.identification} "
+             f"identification for stall loads), and the middle of the best is kept. Chosen: tau = "
+             f"{tau * scale:.5g} {units}.",
+             "", f"Held-out campaign: {cfg.validation.scenarios} scenarios per design cell, seed "
+             f"{cfg.validation.seed}, {cfg.validation.duration_s} s, run with the FDD before and after tuning "
+             f"({t_val:.1f} s); the FDD numbers "
+             f"are traced, so both runs share one compilation (compiled batch functions after each run: "
+             f"{compiles[0]}, {compiles[1]}). Bounds as in the campaign report (eqs. 26-27)."]
+    io.write_text(out / "report.md", report.tuning_markdown(f"Tuning {Path(args.config).stem}", det, history, best,
+                                                            {k: before[k] * scale for k in ("tau_f", "tau_d")},
+                                                            parameters, validation, notes, meta, scan))
+    _save_figure(plots.tuning_history(history, units), out / "history.png")
+    for _, r in validation.iterrows():
+        print(f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
+              f"{r['missed']}/{r['faulty_runs']}, detection time median {r['detection_time_median_s']:.3g} s, stall "
+              f"detector above tau outside stalls in {r['stall_detector_fires']} runs")
+    print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
+    return 0
+
+
 def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
@@ -490,6 +743,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="override campaign.seed")
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
+    p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
     p.set_defaults(func=cmd_campaign)
     p = sub.add_parser("fit-lpv", help="fit the LPV gain models of the fault models to the nonlinear actuator")
     p.add_argument("config", help="TOML config, e.g. configs/lpv_aileron.toml")
@@ -499,6 +753,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--configs", default="configs", help="folder holding fig3.toml, fig4.toml, fig5.toml")
     p.add_argument("--out", help="output folder (default results/figures)")
     p.set_defaults(func=cmd_figures)
+    p = sub.add_parser("worst-case", help="tau_f or tau_d of a detector by gradient search, against Monte Carlo")
+    p.add_argument("config", help="TOML config, e.g. configs/worst_case_stall.toml")
+    p.add_argument("--out", help="output folder (default results/worst-case-<config>)")
+    p.set_defaults(func=cmd_worst_case)
+    p = sub.add_parser("tune", help="tune a detector's evaluator and threshold by gradient; check on a held-out campaign")
+    p.add_argument("config", help="TOML config, e.g. configs/tune_stall.toml")
+    p.add_argument("--out", help="output folder, new or empty (default: the first free results/tune-<config>[-N])")
+    p.set_defaults(func=cmd_tune)
     return parser
 
 

@@ -838,6 +838,8 @@ class TuneSettings:
     temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
                               doc="smooth maximum/minimum over time and runs, in log units of the statistic")
     margin: float = spec(0.2, lo=0.0, hi=1.0, doc="tau = tau_f + margin (tau_d - tau_f); small: fast detection")
+    threshold_candidates: int = spec(32, lo=2, hi=1000,
+                                     doc="thresholds compared on the training set when the gap stays negative")
     tune_pole: bool = spec(True, doc="tune the filter pole a besides alpha, beta, gamma")
 
 

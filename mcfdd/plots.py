@@ -231,3 +231,59 @@ def fig6(run: pd.DataFrame, max_deflection_deg: float) -> Figure:
         _shade(ax, t, run["stall"], color="red", alpha=0.12)
         ax.grid(alpha=0.3)
     return fig
+
+
+def search_history(df: pd.DataFrame, value: str, smooth: str, label: str, bound: str) -> Figure:
+    """Worst-case search: the bound per gradient iteration for each start (smooth value dashed),
+    beside the best of the screening and of Monte Carlo with the same number of simulations.
+
+    ``df`` has one row per simulation with ``method``, ``start``, ``iteration`` and the columns
+    ``value`` (hard bound) and ``smooth``; ``label`` names the bound on the axis; ``bound`` is 'free'
+    (the worst case is the largest value) or 'detect' (the smallest).
+    """
+    fig = Figure(figsize=(8, 4.5), constrained_layout=True)
+    ax = fig.subplots()
+    grad = df[df["method"] == "gradient"]
+    for i, (start, g) in enumerate(grad.groupby("start")):
+        g = g.sort_values("iteration")
+        ax.plot(g["iteration"], g[value], "o-", color=f"C{i % 10}", ms=3, label=f"start {start}")
+        ax.plot(g["iteration"], g[smooth], "--", color=f"C{i % 10}", lw=0.8)
+    for method, style, name in (("screening", ":", "best of the screening"),
+                                ("monte_carlo", "-.", "Monte Carlo, equal simulations")):
+        values = df.loc[df["method"] == method, value].to_numpy(dtype=float)
+        values = values[np.isfinite(values)]
+        if values.size:
+            best = values.max() if bound == "free" else values.min()
+            ax.axhline(best, color="k", ls=style, lw=1.0, label=name)
+    ax.set_xlabel("gradient iteration")
+    ax.set_ylabel(label)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    return fig
+
+
+def tuning_history(history: pd.DataFrame, units: str) -> Figure:
+    """Tuning: normalised detection gap per iteration (hard, and the smooth log gap), the bounds and
+    the parameters. ``history`` has one row per iteration."""
+    fig = Figure(figsize=(10, 7), constrained_layout=True)
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
+    it = history["iteration"]
+    ax1.plot(it, history["normalised_gap"], "o-", ms=3, label="(tau_d - tau_f) / tau_f")
+    ax1.plot(it, np.expm1(history["smooth_log_gap"]), "--", label="smooth: exp(log tau_d - log tau_f) - 1")
+    ax1.axhline(0.0, color="k", lw=0.8)
+    ax1.set_ylabel("normalised gap")
+    ax1.legend(fontsize=8)
+    ax2.plot(it, history["tau_f"], label="tau_f (26)")
+    ax2.plot(it, history["tau_d"], label="tau_d (27)")
+    ax2.set_ylabel(f"bound ({units})")
+    ax2.set_yscale("log")
+    ax2.legend(fontsize=8)
+    for name in ("alpha", "beta", "gamma_1_s", "pole_1_s"):
+        ax3.plot(it, history[name], label=name)
+    ax3.set_yscale("log")
+    ax3.set_ylabel("parameter")
+    ax3.set_xlabel("iteration")
+    ax3.legend(fontsize=8, ncol=4)
+    for ax in (ax1, ax2, ax3):
+        ax.grid(alpha=0.3)
+    return fig

@@ -158,3 +158,141 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     for name, row in conf.iterrows():
         lines.append(f"| {name} | " + " | ".join(str(v) for v in row.to_numpy()) + " |")
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------------
+# Worst-case search and tuning (``mcfdd worst-case``, ``mcfdd tune``)
+
+SEARCH_METHODS = {
+    "gradient search (Sobol screening + projected gradient)": ("screening", "gradient"),
+    "Sobol screening alone": ("screening",),
+    "Monte Carlo, equal number of simulations": ("monte_carlo",),
+    "Monte Carlo, equal run time": ("monte_carlo", "monte_carlo_extra"),
+}
+
+
+def search_summary(df: pd.DataFrame, value: str, bound: str, run_time_s: dict) -> pd.DataFrame:
+    """Worst bound found by each method with its row (``df`` holds one row per simulation).
+
+    ``bound`` is 'free' (the worst case is the largest value) or 'detect' (the smallest);
+    ``run_time_s`` maps the ``method`` labels of ``df`` to their run times (s).
+    """
+    rows = []
+    for name, methods in SEARCH_METHODS.items():
+        sub = df[df["method"].isin(methods)]
+        best, row = metrics.bound_with_witness(sub[value].to_numpy(), sub.index.to_numpy(),
+                                               "sup" if bound == "free" else "inf")
+        rows.append({"method": name, "simulations": int(len(sub)),
+                     "run_time_s": float(sum(run_time_s.get(m, 0.0) for m in methods)), value: best, "row": row})
+    return pd.DataFrame(rows)
+
+
+def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value: str, bound: str, parameters, notes,
+                        meta: dict) -> str:
+    """Report of a worst-case search: methods compared, the worst scenarios, progress per start.
+
+    ``summ`` is :func:`search_summary` of ``df``; ``parameters`` the scenario columns to show.
+    """
+    lines = [f"# {title}", "", *notes, "", f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision "
+             f"{meta.get('git_revision')}.", "", f"| method | simulations | run time (s) | worst {value} | row |",
+             "|---|---|---|---|---|"]
+    for _, r in summ.iterrows():
+        lines.append(f"| {r['method']} | {r['simulations']} | {r['run_time_s']:.1f} | {_fmt(r[value], 5)} | {r['row']} |")
+    rows = [int(r) for r in summ["row"] if r >= 0]
+    lines += ["", "## Worst scenarios", "", "| parameter | " + " | ".join(summ["method"][summ["row"] >= 0]) + " |",
+              "|---" * (len(rows) + 1) + "|"]
+    for name in [*parameters, value]:
+        lines.append(f"| {name} | " + " | ".join(_fmt(df.loc[r, name], 5) if not isinstance(df.loc[r, name], str)
+                                                else df.loc[r, name] for r in rows) + " |")
+    grad = df[df["method"] == "gradient"]
+    if len(grad):
+        lines += ["", "## Gradient search per start", "", "| start (screening row) | at start | after the last step "
+                  "| best |", "|---|---|---|---|"]
+        worst = max if bound == "free" else min
+        for start, g in grad.groupby("start"):
+            g = g.sort_values("iteration")
+            values = g[value].to_numpy()
+            finite = values[np.isfinite(values)]
+            lines.append(f"| {start} | {_fmt(values[0], 5)} | {_fmt(values[-1], 5)} | "
+                         f"{_fmt(worst(finite), 5) if finite.size else 'nan'} |")
+    return "\n".join(lines) + "\n"
+
+
+def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_window_s: float,
+                     identification: str) -> pd.DataFrame:
+    """Held-out campaign outcomes side by side: one row per FDD setting (e.g. 'before', 'after').
+
+    ``frames`` maps the setting to its campaign scenario table, ``stall_tau_deg`` to its stall
+    threshold; ``stall_detector_fires`` counts runs whose stall detector crossed it outside stall
+    loads, ``stall_late_or_missed`` runs with a relevant stall event that the ``identification``
+    method ('signal' or 'model') did not identify within ``stall_window_s``.
+    """
+    rows = []
+    for label, df in frames.items():
+        overall = summary(df).query("group == 'overall'").iloc[0]
+        gap = gaps(df, deg_per_m).set_index("detector")
+        ok = df["status"] == 0
+        fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())
+        row = {"fdd": label, **{k: overall[k] for k in (
+            "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo", "loe_far_hi",
+            "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_rate",
+            "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
+            "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
+            "stall_worst_latency_model_s")}, "stall_detector_fires": fires,
+            "stall_late_or_missed": int((ok & ((df[f"stall_worst_latency_{identification}_s"] > stall_window_s)
+                                               | (df[f"stall_identified_{identification}"] < df["stall_events"]))).sum())}
+        for det in gap.index:
+            for k in ("tau_f", "tau_d", "gap"):
+                row[f"{det}_{k}"] = gap.loc[det, k]
+            row[f"{det}_normalised_gap"] = gap.loc[det, "gap"] / gap.loc[det, "tau_f"]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int, before: dict,
+                    parameters: pd.DataFrame, validation: pd.DataFrame, notes, meta: dict,
+                    scan: pd.DataFrame | None = None) -> str:
+    """Report of a tuning run: parameters and training gap before (``before``: tau_f and tau_d of
+    the configured FDD) and after (iteration ``best`` of ``history``), the threshold scan if one
+    was made, the held-out campaign side by side."""
+    units = "deg" if detector == "stall" else "theta/||u||"
+    chosen = history.iloc[best]
+    first = {**before, "normalised_gap": (before["tau_d"] - before["tau_f"]) / before["tau_f"]}
+    lines = [f"# {title}", "", *notes, "", f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision "
+             f"{meta.get('git_revision')}.", "", "## Parameters", "", "| parameter | before | after |", "|---|---|---|"]
+    for _, r in parameters.iterrows():
+        lines.append(f"| {r['parameter']} | {_fmt(r['before'], 5)} | {_fmt(r['after'], 5)} |")
+    lines += ["", f"## Training set (iteration {best} of {len(history) - 1} chosen)", "",
+              f"| | tau_f ({units}) | tau_d ({units}) | gap | normalised gap (tau_d - tau_f) / tau_f |",
+              "|---|---|---|---|---|"]
+    for label, r in (("before", first), ("after", chosen)):
+        lines.append(f"| {label} | {_fmt(r['tau_f'], 5)} | {_fmt(r['tau_d'], 5)} | {_fmt(r['tau_d'] - r['tau_f'], 5)} "
+                     f"| {_fmt(r['normalised_gap'], 4)} |")
+    if scan is not None:
+        lines += ["", "## Thresholds on the training set (negative gap)", "",
+                  "| " + " | ".join(scan.columns) + " |", "|---" * len(scan.columns) + "|"]
+        lines += ["| " + " | ".join(_fmt(v, 4) if isinstance(v, float) else str(v) for v in r) + " |"
+                  for r in scan.itertuples(index=False)]
+    lines += ["", "## Held-out campaign", "", "| | " + " | ".join(validation["fdd"]) + " |",
+              "|---" * (len(validation) + 1) + "|"]
+    for name, cell in (
+        ("runs", lambda r: str(r["runs"])),
+        ("FAR (any, incl. eta outside stall)", lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
+        ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
+        ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
+        ("correct identification", lambda r: _fmt(r["identification_rate"])),
+        ("detection time median / p95 / max (s)", lambda r: f"{_fmt(r['detection_time_median_s'])} / "
+         f"{_fmt(r['detection_time_p95_s'])} / {_fmt(r['detection_time_max_s'])}"),
+        ("stall detector above tau outside stall loads (runs)", lambda r: str(r["stall_detector_fires"])),
+        ("eta = 1 outside stall loads (runs, signal)", lambda r: str(r["eta_false_alarms_signal"])),
+        ("stall events identified, signal (worst latency s)", lambda r: f"{r['stall_identified_signal']} / "
+         f"{r['stall_events']} ({_fmt(r['stall_worst_latency_signal_s'])})"),
+        ("stall events identified, model (worst latency s)", lambda r: f"{r['stall_identified_model']} / "
+         f"{r['stall_events']} ({_fmt(r['stall_worst_latency_model_s'])})"),
+        ("runs with a stall load identified late (after the stall window) or not", lambda r: str(r["stall_late_or_missed"])),
+        (f"{detector} tau_f / tau_d ({units}) / normalised gap", lambda r: " / ".join(
+            _fmt(r[f"{'stall_detector' if detector == 'stall' else 'loe_bank'}_{k}"], 4)
+            for k in ("tau_f", "tau_d", "normalised_gap"))),
+    ):
+        lines.append(f"| {name} | " + " | ".join(cell(r) for _, r in validation.iterrows()) + " |")
+    return "\n".join(lines) + "\n"

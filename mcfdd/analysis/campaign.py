@@ -15,10 +15,10 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
   relevant if it lasts at least ``stall_min_duration_s`` and the tracking error reaches
   ``stall_min_error_m``. Counted: relevant events, identified ones per identification method and
   the worst latency (first eta = 1 minus onset) of each method; eta = 1 outside events (not
-  counted within a grace period after an event, nor just before one begins); the stall detector's largest theta outside events before any
-  fault (its false-alarm bound, eq. 26) and, per relevant event, the peak theta within
-  ``stall_window_s`` of the onset (its smallest value over the run feeds the detection bound,
-  eq. 27, read as "detected within the window").
+  counted within a grace period after an event, nor just before one begins); the stall
+  detector's largest theta outside events before any fault (its false-alarm bound, eq. 26) and,
+  per relevant event, the peak theta within ``stall_window_s`` of the onset (its smallest value
+  over the run feeds the detection bound, eq. 27, read as "detected within the window").
 - status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
 """
 
@@ -103,7 +103,8 @@ def reduction_init(n_models: int, dtype) -> Reduction:
 
 def _close_event(s: Settings, red: Reduction, t_end, closing):
     """Book the current stall event if ``closing`` (its last sample was before ``t_end``)."""
-    relevant = closing & (t_end - red.event_start >= s.stall_min_duration_s) & (red.event_max_error >= s.stall_min_error_m)
+    long_enough = t_end - red.event_start >= s.stall_min_duration_s
+    relevant = closing & long_enough & (red.event_max_error >= s.stall_min_error_m)
     found_sig = relevant & jnp.isfinite(red.event_eta_signal)
     found_mod = relevant & jnp.isfinite(red.event_eta_model)
     return red._replace(

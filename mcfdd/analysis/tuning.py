@@ -16,7 +16,10 @@ is monotone in the normalised detection gap and free of the evaluator's scale. P
 optimised as logarithms (Adam, optax), so they stay positive; a zero alpha (a pure integral
 evaluator) starts from ``ALPHA_FLOOR * beta``. Confirmation time, excitation floor and the stall
 identification rules are not tuned. The threshold is then placed inside the gap,
-``tau = tau_f + margin (tau_d - tau_f)``: near tau_f for fast detection (Section 5.3).
+``tau = tau_f + margin (tau_d - tau_f)``: near tau_f for fast detection (Section 5.3). Where the
+gap stays negative, candidate thresholds are compared by the false alarms and missed detections
+they give on the training set (:func:`threshold_scan`; the threshold is traced, so one compilation
+serves all candidates).
 """
 
 from __future__ import annotations
@@ -72,9 +75,29 @@ def apply(params: system.FddParams, detector: str, theta: Tunable, tune_pole: bo
     return params._replace(**{detector: part})
 
 
-def place_threshold(tau_f: float, tau_d: float, margin: float) -> float:
-    """tau = tau_f + margin (tau_d - tau_f)."""
-    return tau_f + margin * (tau_d - tau_f)
+def with_threshold(params: system.FddParams, detector: str, tau) -> system.FddParams:
+    """FDD parameters with the detector's threshold replaced (rod m for the stall detector)."""
+    return params._replace(**{detector: _detector(params, detector)._replace(tau=tau)})
+
+
+def place_threshold(tau_f: float, tau_d: float, margin: float, taus=None, false_alarms=None, misses=None) -> float:
+    """The threshold: ``tau_f + margin (tau_d - tau_f)`` inside a positive gap (eq. 26-27).
+
+    Without a positive gap no threshold guarantees both no false alarm and no missed detection;
+    then the candidate ``taus`` are ranked by their false alarms, then missed detections on the
+    training set (:func:`threshold_scan`), and the middle of the best ones is taken.
+    """
+    if tau_d > tau_f or taus is None:
+        return tau_f + margin * (tau_d - tau_f)
+    rank = np.lexsort((np.asarray(misses), np.asarray(false_alarms)))
+    best = rank[(np.asarray(false_alarms)[rank] == np.asarray(false_alarms)[rank[0]])
+                & (np.asarray(misses)[rank] == np.asarray(misses)[rank[0]])]
+    return float(np.asarray(taus)[np.sort(best)[len(best) // 2]])
+
+
+def candidates(tau_f: float, tau_d: float, n: int) -> np.ndarray:
+    """n thresholds spaced geometrically from half the smaller bound to 1.5 times the larger."""
+    return np.geomspace(0.5 * min(tau_f, tau_d), 1.5 * max(tau_f, tau_d), n)
 
 
 class TrainingSet(NamedTuple):
@@ -161,6 +184,34 @@ def gap_and_grad(theta: Tunable, fdd_params, settings, data: TrainingSet, temper
 def evaluate(fdd_params, settings, data: TrainingSet, temperature, dt_s: float, detector: str) -> dict:
     """:func:`bounds` of given FDD parameters (no gradient), one jit."""
     return bounds(fdd_params, settings, data, temperature, dt_s, detector)
+
+
+@partial(jax.jit, static_argnames=("dt_s", "detector", "identification"))
+def threshold_scan(fdd_params, settings, data: TrainingSet, taus, dt_s: float, detector: str, identification: str):
+    """False alarms (runs) and missed detections for each candidate threshold (K,), one jit.
+
+    Definitions of the campaign (DESIGN.md section 5): LOE bank, a fault-model decision before
+    the fault and a parametric fault without a fault-model decision in the window; stall
+    detector, eta = 1 of the ``identification`` method ('signal' or 'model') outside stall loads
+    and a relevant stall event not identified within ``stall_window_s``. Returns (runs with a false
+    alarm (K,), runs with a miss (K,)).
+    """
+    def at(tau):
+        def one(plant, v, h, truth):
+            return fdd_run(with_threshold(fdd_params, detector, tau), settings, plant, v, h, truth, 1.0, dt_s)[1]
+
+        out = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
+        ok = out["status"] == campaign.STATUS_OK
+        if detector == "loe":
+            false = ok & jnp.isfinite(out["false_alarm_time_s"])
+            missed = ok & data.counts & ~jnp.isfinite(out["detection_time_s"])
+        else:
+            false = ok & (out[f"eta_outside_{identification}_time_s"] < data.truth.onset_s)
+            late = out[f"stall_worst_latency_{identification}_s"] > settings.stall_window_s
+            missed = ok & ((out["stall_events"] > out[f"stall_identified_{identification}"]) | late)
+        return jnp.sum(false), jnp.sum(missed)
+
+    return jax.lax.map(at, taus)
 
 
 class Result(NamedTuple):

@@ -25,8 +25,8 @@ same for every detector. As T -> 0 the smooth values tend to the hard ones.
 
 Search space: the ``range`` axes of a campaign's scenario space, mapped from the unit cube as
 :func:`mcfdd.analysis.scenarios.design_table` does (Vcas between its lower bound and the smaller of
-its upper bound and the Mach-limit speed at the altitude, here interpolated on an altitude grid so
-that the map is differentiable); the projection is a clip to [0, 1]. Categorical and discrete axes
+its upper bound and the Mach-limit speed at the altitude, whose closed form keeps the map
+differentiable); the projection is a clip to [0, 1]. Categorical and discrete axes
 are held fixed per start, at the values of its screening point. The scenario's random numbers are
 fixed by its key, so the objective is deterministic. :func:`mcfdd.analysis.scenarios.to_scenario`
 is affine in every continuous column once the categorical ones are fixed, so a point's traced
@@ -49,12 +49,9 @@ import optax
 from mcfdd.analysis import campaign, scenarios
 from mcfdd.analysis.simulate import run_keys, scan_steps
 from mcfdd.fdd import system
-from mcfdd.plant import closed_loop, manoeuvres
+from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 
 LOG_FLOOR = 1e-20  # statistics are floored here before the logarithm
-MACH_GRID_POINTS = 129
-DETECTORS = ("stall", "loe")
-BOUNDS = ("free", "detect")
 # campaign outcome holding the hard value of each (detector, bound); the LOE ones take filter 0
 HARD_OUTCOME = {("stall", "free"): "stall_theta_max_free", ("stall", "detect"): "stall_theta_peak_min",
                 ("loe", "free"): "ratio_max_pre", ("loe", "detect"): "others_min_peak"}
@@ -188,14 +185,13 @@ def hard_value(outcomes: dict, detector: str, bound: str):
 
 
 class Box(NamedTuple):
-    """Unit cube to column values. Arrays over the d continuous axes, Mach-limit table (kt over m)."""
+    """Unit cube to column values: arrays over the d continuous axes and the Mach limit."""
 
     lo: jnp.ndarray
     hi: jnp.ndarray
     vcas: jnp.ndarray  # (d,) true for the vcas_kt axis
     altitude: jnp.ndarray  # (d,) one-hot of the altitude_m axis (zeros if it is not continuous)
-    grid_altitude_m: jnp.ndarray
-    grid_vmax_kt: jnp.ndarray
+    max_mach: jnp.ndarray
 
 
 class Anchor(NamedTuple):
@@ -218,7 +214,7 @@ def to_columns(box: Box, altitude_m, u):
     span = box.hi - box.lo
     plain = box.lo + u * span
     altitude = jnp.where(jnp.any(box.altitude > 0), jnp.sum(box.altitude * plain), altitude_m)
-    vmax = jnp.interp(altitude, box.grid_altitude_m, box.grid_vmax_kt)
+    vmax = atmosphere.calibrated_airspeed(box.max_mach, altitude) / atmosphere.KT_TO_M_S
     return jnp.where(box.vcas, box.lo + u * (jnp.minimum(box.hi, vmax) - box.lo), plain)
 
 
@@ -240,7 +236,7 @@ class SearchSpace:
 
     ``continuous``: the 'range' axes (the unit cube searched); ``categorical``: the other varying
     axes (choices and discrete values), held fixed per point; ``constants``: const axes.
-    ``size_columns`` maps a fault kind to the column holding its size (as in the campaign design).
+    ``size_columns`` maps a column holding fault sizes to its fault kind (as in the campaign design).
     """
 
     continuous: tuple
@@ -251,6 +247,7 @@ class SearchSpace:
 
     @classmethod
     def from_axes(cls, axes, max_mach: float, size_columns: dict) -> "SearchSpace":
+        """Split the axes (:class:`mcfdd.analysis.scenarios.Axis`) of a scenario space."""
         return cls(tuple(a for a in axes if a.kind == "range"),
                    tuple(a for a in axes if a.kind in ("choices", "values")),
                    {a.name: a.values[0] for a in axes if a.kind == "const"}, dict(size_columns), max_mach)
@@ -263,30 +260,18 @@ class SearchSpace:
     def dim(self) -> int:
         return len(self.continuous)
 
-    def _extent(self, name: str) -> tuple[float, float]:
-        """Smallest and largest value the space gives column ``name``."""
-        for a in self.continuous:
-            if a.name == name:
-                return a.lo, a.hi
-        for a in self.categorical:
-            if a.name == name:
-                return min(a.values), max(a.values)
-        value = self.constants.get(name, scenarios.DEFAULTS[name])
-        return value, value
-
     def box(self, dtype) -> Box:
-        lo, hi = self._extent("altitude_m")
-        grid = np.linspace(lo, hi, MACH_GRID_POINTS) if hi > lo else np.array([lo, lo + 1.0])
+        """The :class:`Box` of the continuous axes (column units, e.g. kt, m) in ``dtype``."""
         f = np.dtype(dtype)
-        return Box(lo=jnp.asarray([a.lo for a in self.continuous], f), hi=jnp.asarray([a.hi for a in self.continuous], f),
+        return Box(lo=jnp.asarray([a.lo for a in self.continuous], f),
+                   hi=jnp.asarray([a.hi for a in self.continuous], f),
                    vcas=jnp.asarray([n == "vcas_kt" for n in self.names]),
                    altitude=jnp.asarray([float(n == "altitude_m") for n in self.names], f),
-                   grid_altitude_m=jnp.asarray(grid, f),
-                   grid_vmax_kt=jnp.asarray(scenarios.mach_limit_speed_kt(grid, self.max_mach), f))
+                   max_mach=jnp.asarray(self.max_mach, f))
 
     def categories(self, u_cat) -> dict:
         """Categorical columns of points drawn as u_cat (P, k) in [0, 1)^k (``Axis.from_unit``)."""
-        u_cat = np.asarray(u_cat).reshape(-1, len(self.categorical))
+        u_cat = np.asarray(u_cat)
         return {a.name: a.from_unit(u_cat[:, j]) for j, a in enumerate(self.categorical)}
 
     def table(self, categories: dict, x) -> dict:
@@ -301,10 +286,10 @@ class SearchSpace:
         cols.update({name: x[:, j] for j, name in enumerate(self.names)})
         kind = np.asarray(cols.get("fault_kind", np.full(n, scenarios.DEFAULTS["fault_kind"])))
         size = np.zeros(n)
-        for fault, column in self.size_columns.items():
+        for column, fault in self.size_columns.items():
             if column in cols:
                 size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
-        if any(c in self.constants or c in categories or c in self.names for c in self.size_columns.values()):
+        if any(c in self.constants or c in categories or c in self.names for c in self.size_columns):
             cols["fault_size"] = size
         return cols
 
@@ -429,17 +414,19 @@ class History(NamedTuple):
 
 
 def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> History:
-    """Multi-start projected Adam ascent on [0, 1]^d.
+    """Multi-start projected Adam ascent on [0, 1]^d with backtracking.
 
     ``score_and_grad_fn(u)`` returns (score (S,), aux, gradient (S, d)) for the S starts u (S, d);
     a score of -inf marks an infeasible point (e.g. no stall event left to measure): that start
-    returns to its best feasible point. ``callback(i, score, aux)`` sees every evaluation.
+    returns to its best feasible point and halves its step, which grows back by half after each
+    feasible one (up to the Adam step). ``callback(i, score, aux)`` sees every evaluation.
     Evaluations: S (iterations + 1).
     """
     opt = optax.adam(learning_rate)
     u = jnp.asarray(u0)
     state = opt.init(u)
     best_u, best = u, jnp.full(u.shape[0], -jnp.inf, u.dtype)
+    step = jnp.ones(u.shape[0], u.dtype)
     us, scores, auxes = [], [], []
     for i in range(iterations + 1):
         score, aux, grad = score_and_grad_fn(u)
@@ -454,9 +441,10 @@ def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callbac
         better = feasible & (score > best)
         best_u = jnp.where(better[:, None], u, best_u)
         best = jnp.where(better, score, best)
+        step = jnp.where(feasible, jnp.minimum(1.0, 1.5 * step), 0.5 * step)
         updates, state = opt.update(-grad, state, u)
-        stepped = optax.projections.projection_box(optax.apply_updates(u, updates), 0.0, 1.0)
-        u = jnp.where(feasible[:, None], stepped, best_u)
+        base = jnp.where(feasible[:, None], u, best_u)
+        u = optax.projections.projection_box(base + step[:, None] * updates, 0.0, 1.0)
     return History(np.stack(us), np.stack(scores), auxes)
 
 
@@ -571,10 +559,12 @@ def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: in
     return ascend(score_and_grad_fn, u0, iterations, learning_rate, report).aux
 
 
-def sample(problem: Problem, design: str, n: int, seed: int, batch: int) -> Points:
-    """n points of the whole space by a design ('sobol' screening, 'random' Monte Carlo), keys from seed."""
+def sample(problem: Problem, design: str, n: int, seed: int, batch: int, first: int = 0) -> Points:
+    """Points ``first`` .. n - 1 of n drawn from the whole space by a design ('sobol' for the
+    screening, 'random' for Monte Carlo), point i with key ``run_keys(seed, i)``."""
     u, categories = unit_points(problem.space, design, n, seed)
-    return evaluate_points(problem, u, categories, run_keys(seed, np.arange(n)), batch)
+    return evaluate_points(problem, u[first:], {k: np.asarray(v)[first:] for k, v in categories.items()},
+                           run_keys(seed, np.arange(first, n)), batch)
 
 
 def budget(screening: int, starts: int, iterations: int) -> int:

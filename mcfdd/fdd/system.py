@@ -140,5 +140,5 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
 
     new = FddState(bank_xq, bank_xi, band, band_xi, confirm, since_stall, stall_xq, stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, r_stall, theta_stall, iota_stall, eta_signal,
-                           eta_model, theta_sl)
+    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, r_stall, theta_stall,
+                           iota_stall, eta_signal, eta_model, theta_sl)

@@ -114,7 +114,8 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
     )
     qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
     load = hinge.flight_point_slice(model.table, scenario.vcas_m_s, scenario.altitude_m) * scenario.hinge_scale
-    roll_damping, aileron_power = aircraft.roll_derivatives(model.aircraft, qbar, tas, model.aircraft.roll_inertia_kg_m2)
+    roll_damping, aileron_power = aircraft.roll_derivatives(model.aircraft, qbar, tas,
+                                                            model.aircraft.roll_inertia_kg_m2)
     return RunParams(
         actuator=act,
         fault=scenario.fault,
