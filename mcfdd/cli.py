@@ -729,38 +729,39 @@ def _report_stall_latencies(run, dt_s: float):
         print(f"eta ({method}) outside stall events: {false.sum() * dt_s:.2f} s")
 
 
+def _command(sub, name: str, func, summary: str, example: str | None, out: str):
+    """A subcommand taking a TOML config (unless ``example`` is None) and ``--out``."""
+    p = sub.add_parser(name, help=summary)
+    if example is not None:
+        p.add_argument("config", help=f"TOML config, e.g. configs/{example}")
+    p.add_argument("--out", help=f"output folder (default {out})")
+    p.set_defaults(func=func)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mcfdd", description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = argparse.ArgumentParser(
+        prog="mcfdd", description="Monte-Carlo robustness analysis of flight-actuator fault detection and diagnosis "
+        "(Ossmann and Varga, 2015): simulate, fit LPV models, run campaigns, tune, search worst cases.")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("simulate", help="simulate the named runs of a config, write time histories and plots")
-    p.add_argument("config", help="TOML config, e.g. configs/fig5.toml")
-    p.add_argument("--out", help="output folder (default results/simulate-<config>)")
-    p.set_defaults(func=cmd_simulate)
-    p = sub.add_parser("campaign", help="Monte-Carlo campaign over a scenario space: FAR, MDR, detection times")
-    p.add_argument("config", help="TOML config, e.g. configs/loe_campaign.toml")
-    p.add_argument("--out", help="output folder (default: a new results/campaign-<config>[-N])")
+    _command(sub, "simulate", cmd_simulate, "simulate the named runs of a config, write time histories and plots",
+             "fig5.toml", "results/simulate-<config>")
+    p = _command(sub, "campaign", cmd_campaign, "Monte-Carlo campaign over a scenario space: FAR, MDR, detection "
+                 "times", "loe_campaign.toml", "a new results/campaign-<config>[-N]")
     p.add_argument("--scenarios", type=int, help="override campaign.scenarios")
     p.add_argument("--seed", type=int, help="override campaign.seed")
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
-    p.set_defaults(func=cmd_campaign)
-    p = sub.add_parser("fit-lpv", help="fit the LPV gain models of the fault models to the nonlinear actuator")
-    p.add_argument("config", help="TOML config, e.g. configs/lpv_aileron.toml")
-    p.add_argument("--out", help="output folder (default results/fit-lpv-<config>)")
-    p.set_defaults(func=cmd_fit_lpv)
-    p = sub.add_parser("figures", help="the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml")
+    _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
+             "lpv_aileron.toml", "results/fit-lpv-<config>")
+    p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,
+                 "results/figures")
     p.add_argument("--configs", default="configs", help="folder holding fig3.toml, fig4.toml, fig5.toml")
-    p.add_argument("--out", help="output folder (default results/figures)")
-    p.set_defaults(func=cmd_figures)
-    p = sub.add_parser("worst-case", help="tau_f or tau_d of a detector by gradient search, against Monte Carlo")
-    p.add_argument("config", help="TOML config, e.g. configs/worst_case_stall.toml")
-    p.add_argument("--out", help="output folder (default results/worst-case-<config>)")
-    p.set_defaults(func=cmd_worst_case)
-    p = sub.add_parser("tune", help="tune a detector's evaluator and threshold by gradient; check on a held-out campaign")
-    p.add_argument("config", help="TOML config, e.g. configs/tune_stall.toml")
-    p.add_argument("--out", help="output folder, new or empty (default: the first free results/tune-<config>[-N])")
-    p.set_defaults(func=cmd_tune)
+    _command(sub, "worst-case", cmd_worst_case, "tau_f or tau_d of a detector by gradient search, against Monte "
+             "Carlo", "worst_case_stall.toml", "results/worst-case-<config>")
+    _command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
+             "campaign", "tune_stall.toml", "the first free results/tune-<config>[-N]")
     return parser
 
 
