@@ -2,7 +2,11 @@
 
 Batches of 1,000 and 10,000 scenarios of 60 s at 100 Hz, a mix of manoeuvre families, flight
 points, turbulence levels and faults. For each batch size: compile time (first call minus the
-second), run time of the second call (``block_until_ready``) and scenario-steps per second.
+second), run time of the second call (``block_until_ready``), scenario-steps per second, the
+CPU time the run used per second of wall time (2 = both cores busy) and the peak resident memory
+of the process so far. ``plant_batch`` returns full time histories (about 220 kB per scenario at
+6,000 steps), so 10,000 scenarios need over 2 GB; ``plant_batch`` is a plain ``jit(vmap)``, not
+split over devices with ``shard_map`` as ``campaign.run_batch`` is.
 
     python benchmarks/plant_throughput.py [--sizes 1000 10000] [--duration-s 60]
 """
@@ -12,13 +16,18 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import resource
 import time
 
-import jax
-import numpy as np
+from mcfdd import cli
 
-from mcfdd.analysis import batch, simulate
-from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres
+cli.use_all_cores()  # before JAX creates its CPU backend, as the mcfdd command does
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mcfdd.analysis import batch, simulate  # noqa: E402
+from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres  # noqa: E402
 
 DT_S = 0.01
 SUBSTEPS = 4
@@ -63,15 +72,21 @@ def measure(model, n: int, duration_s: float) -> dict:
     keys = simulate.run_keys(0, range(n))
     n_steps = int(round(duration_s / DT_S))
 
-    def call():
-        start = time.perf_counter()
-        jax.block_until_ready(simulate.plant_batch(model, scenario_batch, keys, n_steps, DT_S, SUBSTEPS, kinds))
-        return time.perf_counter() - start
+    def cpu_s():
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
 
-    first = call()
-    run = call()
+    def call():
+        cpu, start = cpu_s(), time.perf_counter()
+        jax.block_until_ready(simulate.plant_batch(model, scenario_batch, keys, n_steps, DT_S, SUBSTEPS, kinds))
+        wall = time.perf_counter() - start
+        return wall, (cpu_s() - cpu) / wall
+
+    first, _ = call()
+    run, cpu_per_wall = call()
     return {"scenarios": n, "steps": n_steps, "compile_s": first - run, "run_s": run,
-            "throughput": n * n_steps / run}
+            "throughput": n * n_steps / run, "cpu_per_wall": cpu_per_wall,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
 def main(argv=None):
@@ -81,16 +96,17 @@ def main(argv=None):
     args = parser.parse_args(argv)
     assert not jax.config.jax_enable_x64, "the benchmark measures float32"
     model = closed_loop.build_model()
-    print(f"jax {jax.__version__}, {jax.devices()[0].platform}, {os.cpu_count()} CPU cores, "
-          f"{platform.processor() or platform.machine()}, float32, dt {DT_S} s, {SUBSTEPS} actuator sub-steps, "
+    print(f"jax {jax.__version__}, {jax.device_count()} {jax.devices()[0].platform} device(s), {os.cpu_count()} CPU "
+          f"cores, {platform.processor() or platform.machine()}, float32, dt {DT_S} s, {SUBSTEPS} actuator sub-steps, "
           f"families {', '.join(FAMILIES)}")
+    print(f"load average before start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print()
-    print("| scenarios | steps | compile (s) | run (s) | scenario-steps/s |")
-    print("|---:|---:|---:|---:|---:|")
+    print("| scenarios | steps | compile (s) | run (s) | scenario-steps/s | CPU/wall | peak RSS (MB) |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
     for n in args.sizes:
         r = measure(model, n, args.duration_s)
         print(f"| {r['scenarios']:,} | {r['steps']:,} | {r['compile_s']:.1f} | {r['run_s']:.2f} | "
-              f"{r['throughput']:.3g} |", flush=True)
+              f"{r['throughput']:.3g} | {r['cpu_per_wall']:.2f} | {r['peak_rss_mb']:.0f} |", flush=True)
 
 
 if __name__ == "__main__":
