@@ -48,7 +48,6 @@ from mcfdd import cli
 cli.use_all_cores()  # before JAX creates its CPU backend: one device per core
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from jax.sharding import AxisType  # noqa: E402
 from jax.sharding import PartitionSpec as P  # noqa: E402
@@ -56,7 +55,6 @@ from jax.sharding import PartitionSpec as P  # noqa: E402
 import mcfdd  # noqa: E402
 from mcfdd import config, io  # noqa: E402
 from mcfdd.analysis import batch, campaign, scenarios, simulate  # noqa: E402
-from mcfdd.fdd import system  # noqa: E402
 from mcfdd.plant import closed_loop  # noqa: E402
 
 SPACE = {
@@ -176,9 +174,8 @@ def measure_pipeline(n_scenarios: int, duration_s: float, chunk_size: int, repea
 def peer_functions(p: Problem, n_steps: int):
     """Jitted pieces of the Python-loop peer: init, one batched step, a noise block, finalize.
 
-    The step is the body of ``campaign.run_one`` (plant, FDD and reductions composed the same way)
-    vmapped over scenarios and, with several devices, split over them with ``shard_map`` as
-    ``run_batch`` does.
+    The step is ``campaign.step_one``, the body of ``campaign.run_one``, vmapped over scenarios
+    and, with several devices, split over them with ``shard_map`` as ``run_batch`` does.
     """
     model, fdd_params, settings, c, kinds = p.model, p.fdd_params, p.settings, p.c, p.kinds
     dt_s, substeps = c.dt_s, c.substeps
@@ -191,20 +188,11 @@ def peer_functions(p: Problem, n_steps: int):
         return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=P("batch"), check_vma=False))
 
     def init_one(scenario, key):
-        params = closed_loop.prepare(model, scenario, dt_s)
-        plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
-        zero = jnp.zeros_like(params.qbar_pa)
-        fdd_state = system.init(fdd_params, zero, zero)
-        red = campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype)
-        return params, (plant_state, fdd_state, red)
+        return campaign.init_one(model, fdd_params, scenario, key, dt_s)
 
     def step_one(params, scenario, truth, carry, k, noise):
-        plant_state, fdd_state, red = carry
-        t = k * dt_s
-        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-        fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
-                                    scenario.altitude_m, t, dt_s)
-        return plant_state, fdd_state, campaign.reduction_step(settings, truth, red, t, out, fo)
+        return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, noise, dt_s, substeps,
+                                 kinds)[0]
 
     def noise_one(key, b):
         return jax.random.normal(jax.random.fold_in(key, b), (simulate.NOISE_BLOCK, closed_loop.NOISE_DIM))

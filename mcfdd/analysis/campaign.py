@@ -211,26 +211,38 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
     }
 
 
-def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: Settings,
-            scenario: closed_loop.Scenario, truth: Truth, key, n_steps: int, dt_s: float, substeps: int,
-            kinds: tuple[int, ...]) -> dict:
-    """Outcomes of one scenario (no time histories kept)."""
+def init_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenario: closed_loop.Scenario, key,
+             dt_s: float):
+    """Plant parameters and the scan carry (plant, FDD and reduction states) of one scenario at t = 0."""
     params = closed_loop.prepare(model, scenario, dt_s)
     plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
     zero = jnp.zeros_like(params.qbar_pa)
     fdd_state = system.init(fdd_params, zero, zero)
-    n_models = fdd_params.loe.bank.k0.shape[0]
-    red = reduction_init(n_models, zero.dtype)
+    return params, (plant_state, fdd_state, reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype))
+
+
+def step_one(params: closed_loop.RunParams, fdd_params: system.FddParams, settings: Settings,
+             scenario: closed_loop.Scenario, truth: Truth, carry, k, noise, dt_s: float, substeps: int,
+             kinds: tuple[int, ...]):
+    """Sample k of one scenario: plant, FDD and reductions. Returns (new carry, plant outputs, FDD outputs)."""
+    plant_state, fdd_state, red = carry
+    t = k * dt_s
+    plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
+    fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s, scenario.altitude_m,
+                                t, dt_s)
+    return (plant_state, fdd_state, reduction_step(settings, truth, red, t, out, fo)), out, fo
+
+
+def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: Settings,
+            scenario: closed_loop.Scenario, truth: Truth, key, n_steps: int, dt_s: float, substeps: int,
+            kinds: tuple[int, ...]) -> dict:
+    """Outcomes of one scenario (no time histories kept)."""
+    params, carry = init_one(model, fdd_params, scenario, key, dt_s)
 
     def body(carry, k, noise):
-        plant_state, fdd_state, red = carry
-        t = k * dt_s
-        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-        fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
-                                    scenario.altitude_m, t, dt_s)
-        return (plant_state, fdd_state, reduction_step(settings, truth, red, t, out, fo)), None
+        return step_one(params, fdd_params, settings, scenario, truth, carry, k, noise, dt_s, substeps, kinds)[0], None
 
-    (_, _, red), _ = scan_steps(body, (plant_state, fdd_state, red), key, n_steps, closed_loop.NOISE_DIM)
+    (_, _, red), _ = scan_steps(body, carry, key, n_steps, closed_loop.NOISE_DIM)
     return finalize(settings, red, n_steps * dt_s)
 
 

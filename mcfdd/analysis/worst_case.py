@@ -342,23 +342,16 @@ def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, setti
     x = to_columns(box, anchor.altitude_m, u)
     scenario, onset = scenario_at(anchor, x)
     truth = campaign.Truth(onset, anchor.accept)
-    params = closed_loop.prepare(model, scenario, dt_s)
-    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
-    zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = system.init(fdd_params, zero, zero)
-    red = campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype)
+    params, carry = campaign.init_one(model, fdd_params, scenario, key, dt_s)
 
     def body(carry, k, noise):
-        plant_state, fdd_state, red, acc = carry
-        t = k * dt_s
-        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-        fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
-                                    scenario.altitude_m, t, dt_s)
-        new = campaign.reduction_step(settings, truth, red, t, out, fo)
-        return (plant_state, fdd_state, new, soft_step(settings, truth, temperature, acc, red, new, t, out, fo)), None
+        inner, acc = carry
+        new, out, fo = campaign.step_one(params, fdd_params, settings, scenario, truth, inner, k, noise, dt_s,
+                                         substeps, kinds)
+        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], k * dt_s, out, fo)), None
 
-    carry = (plant_state, fdd_state, red, soft_init(zero.dtype))
-    (_, _, red, acc), _ = scan_steps(body, carry, key, n_steps, closed_loop.NOISE_DIM)
+    ((_, _, red), acc), _ = scan_steps(body, (carry, soft_init(params.qbar_pa.dtype)), key, n_steps,
+                                       closed_loop.NOISE_DIM)
     outcomes = campaign.finalize(settings, red, n_steps * dt_s)
     return soft_finalize(acc, red, outcomes, temperature), outcomes, x
 
