@@ -23,6 +23,10 @@ vmapped step (plant step + FDD step + reduction step over all scenarios), the st
 between steps in NumPy host arrays. Its outcomes are checked against ``run_batch`` on the same
 scenarios and steps.
 
+Breakdown, in the same run: one chunk of 20 s with the scan cut after each stage of the step
+(random numbers, + plant, + both FDD systems, + online reductions = the campaign's scan), so the
+differences between rows are what each stage costs.
+
     python benchmarks/campaign_throughput.py            # full run (about 7 min on 2 idle cores)
     python benchmarks/campaign_throughput.py --quick    # 1,000 scenarios at 60 s and 120 s, peer
 
@@ -42,12 +46,14 @@ import resource
 import subprocess
 import sys
 import time
+from functools import partial
 
 from mcfdd import cli
 
 cli.use_all_cores()  # before JAX creates its CPU backend: one device per core
 
 import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from jax.sharding import AxisType  # noqa: E402
 from jax.sharding import PartitionSpec as P  # noqa: E402
@@ -55,6 +61,7 @@ from jax.sharding import PartitionSpec as P  # noqa: E402
 import mcfdd  # noqa: E402
 from mcfdd import config, io  # noqa: E402
 from mcfdd.analysis import batch, campaign, scenarios, simulate  # noqa: E402
+from mcfdd.fdd import system  # noqa: E402
 from mcfdd.plant import closed_loop  # noqa: E402
 
 SPACE = {
@@ -274,11 +281,73 @@ def measure_peer(n_scenarios: int, n_steps: int, repeats: int) -> dict:
     return result
 
 
+STAGES = ("random numbers", "+ plant", "+ both FDD systems", "+ online reductions (the campaign)")
+
+
+def measure_breakdown(n_scenarios: int, duration_s: float, repeats: int) -> dict:
+    """Run time of the campaign scan cut after each stage of its step, on one chunk.
+
+    Each cut keeps a cheap running sum of the last stage's outputs in the carry so that XLA cannot
+    drop the stage; the last row is ``run_batch``'s scan itself. The differences between rows are
+    what each stage adds.
+    """
+    p = Problem(n_scenarios, duration_s, n_scenarios)
+    ids = p.chunks[0]
+    padded = p.padded(ids)
+    scen = jax.tree.map(lambda a: a[padded], p.scenarios)
+    truth = campaign.Truth(p.onset[padded], p.accept[padded])
+    keys = simulate.run_keys(p.c.seed, padded)
+    c, n_steps = p.c, p.c.n_steps
+
+    def one(stage, scenario, truth, key):
+        params, carry = campaign.init_one(p.model, p.fdd_params, scenario, key, c.dt_s)
+
+        def body(state, k, noise):
+            (plant_state, fdd_state, red), acc = state
+            if stage == 0:
+                return ((plant_state, fdd_state, red), acc + noise.sum()), None
+            if stage == 3:
+                new, _, _ = campaign.step_one(params, p.fdd_params, p.settings, scenario, truth,
+                                              (plant_state, fdd_state, red), k, noise, c.dt_s, c.substeps, p.kinds)
+                return (new, acc), None
+            t = k * c.dt_s
+            plant_state, out = closed_loop.step(params, plant_state, t, noise, c.dt_s, c.substeps, p.kinds)
+            if stage == 1:
+                return ((plant_state, fdd_state, red), acc + out.u_m), None
+            fdd_state, fo = system.step(p.fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
+                                        scenario.altitude_m, t, c.dt_s)
+            sink = fo.theta.sum() + fo.theta_stall + fo.detected + fo.eta_signal + fo.eta_model
+            return ((plant_state, fdd_state, red), acc + sink), None
+
+        (carry, acc), _ = simulate.scan_steps(body, (carry, jnp.zeros((), params.qbar_pa.dtype)), key, n_steps,
+                                              closed_loop.NOISE_DIM)
+        return acc, campaign.finalize(p.settings, carry[2], n_steps * c.dt_s)
+
+    n_dev = jax.device_count()
+    mesh = jax.make_mesh((n_dev,), ("batch",), axis_types=(AxisType.Auto,))
+    rows = []
+    for stage, name in enumerate(STAGES):
+        fn = jax.jit(jax.shard_map(jax.vmap(partial(one, stage)), mesh=mesh, in_specs=(P("batch"),) * 3,
+                                   out_specs=P("batch"), check_vma=False))
+        jax.block_until_ready(fn(scen, truth, keys))
+        best = min(_timed(lambda: jax.block_until_ready(fn(scen, truth, keys))) for _ in range(repeats))
+        rows.append({"stage": name, "run_s": best, "throughput": p.size * n_steps / best})
+    return {"kind": "breakdown", "scenarios": p.size, "steps": n_steps, "devices": n_dev, "rows": rows}
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
 def worker(spec: dict) -> dict:
     assert not jax.config.jax_enable_x64, "the benchmark measures float32"
     digest = source_digest()
     if spec["kind"] == "pipeline":
         result = measure_pipeline(spec["scenarios"], spec["duration_s"], spec["chunk_size"], spec["repeats"])
+    elif spec["kind"] == "breakdown":
+        result = measure_breakdown(spec["scenarios"], spec["duration_s"], spec["repeats"])
     else:
         result = measure_peer(spec["scenarios"], spec["steps"], spec["repeats"])
     return {**result, "source": digest}
@@ -363,6 +432,8 @@ def main(argv=None):
               f"RSS before run {r['rss_before_mb']:.0f} MB, load before {r['load_before'][0]:.2f}", flush=True)
     peer = spawn({"kind": "peer", "scenarios": args.peer_scenarios, "steps": args.peer_steps,
                   "repeats": args.repeats}, args.wait_quiet)
+    parts = spawn({"kind": "breakdown", "scenarios": args.chunk_size, "duration_s": 20.0, "repeats": args.repeats + 1},
+                  args.wait_quiet)
     print()
     print("| scenarios | horizon | steps | devices | compile (s) | run (s) | scenario-steps/s | CPU/wall | "
           "peak RSS (MB) |")
@@ -381,10 +452,17 @@ def main(argv=None):
     chk = peer["check"]
     print(f"peer outcomes vs run_batch on the same {peer['scenarios']:,} scenarios x {peer['steps']} steps: "
           f"{chk['scenarios_differing']} scenario(s) differ, largest relative difference {chk['max_rel_diff']:.2g}")
+    print()
+    print(f"where the time goes ({parts['scenarios']:,} scenarios x {parts['steps']:,} steps, the scan cut after "
+          f"each stage of the step):")
+    print("| stage | run (s) | scenario-steps/s |")
+    print("|---|---:|---:|")
+    for r in parts["rows"]:
+        print(f"| {r['stage']} | {r['run_s']:.3f} | {r['throughput']:.3g} |")
     base = rows[0]["throughput"]
     print(f"pipeline / peer (host state): {base / peer['host']['throughput']:.0f}x;  aim 3e7 scenario-steps/s: "
           f"{max(r['throughput'] for r in rows) / 3e7:.2f} of it")
-    digests = {r["source"] for r in rows + [peer]}
+    digests = {r["source"] for r in rows + [peer, parts]}
     if len(digests) > 1:
         print(f"WARNING: the package sources changed during the run ({', '.join(sorted(digests))})")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
