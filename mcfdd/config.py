@@ -348,7 +348,8 @@ class SignalRulesConfig:
     rate_min_deg_s: float = spec(2.0, lo=0.0, lo_open=True, doc="u_dot_min of (33)")
     command_min_deg: float = spec(10.0, lo=0.0, doc="tau_uc,max of (34)")
     position_min_deg: float = spec(10.0, lo=0.0, doc="tau_u,max of (34)")
-    window_s: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="re-anchoring window of the mean rate (32)")
+    window_s: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
+                           doc="shortest averaging time and re-anchoring window of the mean rate (32)")
     error_min_deg: float = spec(0.5, lo=0.0, doc="smallest |u_c - u| for which (35) counts")
 
 

@@ -389,7 +389,7 @@ def run_signal(rules, iota, u_c, u):
     t = jnp.arange(iota.shape[0]) * DT_S
 
     def body(state, inp):
-        return stall.signal_step(rules, state, *inp)
+        return stall.signal_step(rules, state, *inp, DT_S)
     return jax.lax.scan(body, stall.signal_init(u[0]), (iota, u_c, u, t))[1]
 
 
@@ -399,6 +399,7 @@ def held(n, value_deg):
 
 N_TRACE, ONSET = 100, 20
 IOTA = np.arange(N_TRACE) >= ONSET
+WINDOW = round(RULES.window_s / DT_S)  # samples the mean rate (33) is taken over at least
 
 
 @pytest.mark.parametrize("u_deg, u_c_deg, identified", [
@@ -411,10 +412,11 @@ IOTA = np.arange(N_TRACE) >= ONSET
     (15.0, -20.0, False),  # (35): command on the other side
 ])
 def test_signal_rules_on_a_stuck_rod(u_deg, u_c_deg, identified):
-    """Rod held still, iota rising at ONSET: eta = 1 from the next sample iff (34) and (35) hold."""
+    """Rod held still, iota rising at ONSET: eta = 1 from window_s later iff (34) and (35) hold."""
     eta = np.asarray(run_signal(RULES, IOTA, held(N_TRACE, u_c_deg), held(N_TRACE, u_deg)))
-    assert not eta[:ONSET + 1].any()
-    assert eta[ONSET + 1:].all() if identified else not eta.any()
+    first = ONSET + WINDOW
+    assert not eta[:first].any()
+    assert eta[first:].all() if identified else not eta.any()
 
 
 def test_signal_rules_moving_rod_and_no_detection():
@@ -423,11 +425,24 @@ def test_signal_rules_moving_rod_and_no_detection():
     u = (15.0 + 5.0 * t) * DEG_M  # 5 deg/s > rate_min
     assert not np.asarray(run_signal(RULES, IOTA, u + 5.0 * DEG_M, u)).any()
 
-    stuck, beyond = held(N_TRACE, 15.0), held(N_TRACE, 20.0)
-    assert not np.asarray(run_signal(RULES, np.zeros(N_TRACE, bool), beyond, stuck)).any()
-    iota = np.random.default_rng(7).random(N_TRACE) < 0.7
+    n = 1000
+    stuck, beyond = held(n, 15.0), held(n, 20.0)
+    assert not np.asarray(run_signal(RULES, np.zeros(n, bool), beyond, stuck)).any()
+    iota = np.random.default_rng(7).random(n) < 0.95
     eta = np.asarray(run_signal(RULES, iota, beyond, stuck))
     assert eta.any() and not (eta & ~iota).any()
+
+
+def test_signal_rules_ignore_a_mean_rate_over_less_than_the_window():
+    """(33) is not trusted over less than window_s: a rod at rest whose measurement jitters by
+    0.03 deg every other sample (3 deg/s over one sample, 0 over two) gives eta only once
+    window_s has passed since t_d, not two samples after it."""
+    n = 60
+    jitter = np.where(np.arange(n) % 2 == 0, 0.0, 0.03) * DEG_M
+    u = 15.0 * DEG_M + jitter
+    eta = np.asarray(run_signal(RULES, IOTA[:n], held(n, 20.0), u))
+    assert not eta[:ONSET + WINDOW].any()
+    assert eta[ONSET + WINDOW:].all()
 
 
 def test_signal_rules_second_stall_in_one_alarm():
@@ -442,7 +457,7 @@ def test_signal_rules_second_stall_in_one_alarm():
     u = np.clip(15.0 + 10.0 * (t - 1.0), 15.0, 20.0) * DEG_M
     iota = np.arange(n) >= 10
     eta = np.asarray(run_signal(RULES, iota, held(n, 25.0), u))
-    assert eta[11:100].all()  # first stall
+    assert not eta[:10 + WINDOW].any() and eta[10 + WINDOW:100].all()  # first stall
     assert not eta[(t >= 1.3) & (t < 1.5)].any()  # moving
     second = t >= 1.5 + 2 * RULES.window_s + DT_S
     assert eta[second].all()
