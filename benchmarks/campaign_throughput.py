@@ -60,7 +60,7 @@ from jax.sharding import PartitionSpec as P  # noqa: E402
 
 import mcfdd  # noqa: E402
 from mcfdd import config, io  # noqa: E402
-from mcfdd.analysis import batch, campaign, scenarios, simulate  # noqa: E402
+from mcfdd.analysis import campaign, simulate  # noqa: E402
 from mcfdd.fdd import system  # noqa: E402
 from mcfdd.plant import closed_loop  # noqa: E402
 
@@ -87,42 +87,28 @@ def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> con
 
 
 class Problem:
-    """Everything ``run_campaign`` builds before its chunk loop, for one scenario count and horizon."""
+    """The campaign of :func:`campaign_config` set up as ``run_campaign`` sets it up, and its chunks."""
 
     def __init__(self, n_scenarios: int, duration_s: float, chunk_size: int):
         cfg = campaign_config(n_scenarios, duration_s, chunk_size)
-        c = self.c = cfg.campaign
-        dtype = np.float32
-        self.model = cfg.plant.model()
-        bank, _ = cli._load_bank(cfg.fdd, dtype)
-        self.fdd_params = cfg.fdd.params(bank, self.model.actuator.r_arm_m)
-        self.settings = cfg.evaluation.settings(self.model.actuator.r_arm_m)
+        self.c = cfg.campaign
         start = time.perf_counter()
-        cols, n = cfg.design()
-        self.design_s = time.perf_counter() - start
-        assert n == n_scenarios, (n, n_scenarios)
-        self.n = n
-        self.onset = scenarios.fault_onsets(cols, n).astype(dtype)
-        kind = np.asarray(cols["fault_kind"])
-        size = np.asarray(cols.get("fault_size", np.zeros(n)))
-        _, self.accept = scenarios.true_model(np.asarray(bank.nu), kind, size)
-        self.scenarios = scenarios.to_scenario(cols, dtype)
-        self.kinds = batch.kinds_in(self.scenarios.manoeuvre.kind)
-        block = cli.LANE_BLOCK * jax.device_count()
-        self.size = -(-min(c.chunk_size, n) // block) * block
-        self.chunks = [np.arange(i, min(i + self.size, n)) for i in range(0, n, self.size)]
+        self.setup = cli.campaign_setup(cfg)
+        self.setup_s = time.perf_counter() - start
+        self.n = self.setup.n
+        assert self.n == n_scenarios, (self.n, n_scenarios)
+        self.size = cli.chunk_size(self.c.chunk_size, self.n)
+        self.chunks = [np.arange(i, min(i + self.size, self.n)) for i in range(0, self.n, self.size)]
 
-    def padded(self, ids):
-        return np.concatenate([ids, np.repeat(ids[-1:], self.size - len(ids))])
+    def inputs(self, ids):
+        """Padded scenarios, truths and keys of a chunk, as ``run_campaign`` builds them."""
+        return cli.chunk_inputs(self.setup, self.c.seed, ids, self.size)
 
     def run_chunk(self, ids, n_steps=None):
         """One chunk as the CLI runs it: gather, pad, run_batch, outcomes back to host arrays."""
-        padded = self.padded(ids)
-        scen = jax.tree.map(lambda a: a[padded], self.scenarios)
-        truth = campaign.Truth(self.onset[padded], self.accept[padded])
-        raw = campaign.run_batch(self.model, self.fdd_params, self.settings, scen, truth,
-                                 simulate.run_keys(self.c.seed, padded), n_steps or self.c.n_steps, self.c.dt_s,
-                                 self.c.substeps, self.kinds)
+        s, c = self.setup, self.c
+        raw = campaign.run_batch(s.model, s.fdd_params, s.settings, *self.inputs(ids), n_steps or c.n_steps, c.dt_s,
+                                 c.substeps, s.kinds)
         return {k: np.asarray(v)[:len(ids)] for k, v in jax.block_until_ready(raw).items()}
 
 
@@ -170,12 +156,18 @@ def measure_pipeline(n_scenarios: int, duration_s: float, chunk_size: int, repea
     fastest = max(len(ids) / t for r in passes for ids, t in zip(p.chunks, r["chunk_s"])) * steps
     return {
         "kind": "pipeline", "scenarios": p.n, "duration_s": duration_s, "steps": steps, "devices": jax.device_count(),
-        "chunk": p.size, "chunks": len(p.chunks), "design_s": p.design_s, "first_call_s": first,
+        "chunk": p.size, "chunks": len(p.chunks), "setup_s": p.setup_s, "first_call_s": first,
         "compile_s": first - second, "run_s": best["run_s"], "all_runs_s": [r["run_s"] for r in passes],
         "chunk_s_mean": float(np.mean(best["chunk_s"])), "cpu_per_wall": best["cpu_per_wall"],
         "throughput": p.n * steps / best["run_s"], "fastest_chunk_throughput": fastest,
         "rss_before_mb": rss_before, "peak_rss_mb": _peak_rss_mb(),
     }
+
+
+def split(fn, specs):
+    """``jit`` of ``fn`` (vmapped over scenarios) split over all devices with ``shard_map``, as run_batch does."""
+    mesh = jax.make_mesh((jax.device_count(),), ("batch",), axis_types=(AxisType.Auto,))
+    return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=P("batch"), check_vma=False))
 
 
 def peer_functions(p: Problem, n_steps: int):
@@ -184,15 +176,9 @@ def peer_functions(p: Problem, n_steps: int):
     The step is ``campaign.step_one``, the body of ``campaign.run_one``, vmapped over scenarios
     and, with several devices, split over them with ``shard_map`` as ``run_batch`` does.
     """
-    model, fdd_params, settings, c, kinds = p.model, p.fdd_params, p.settings, p.c, p.kinds
-    dt_s, substeps = c.dt_s, c.substeps
-    n_dev = jax.device_count()
-    mesh = jax.make_mesh((n_dev,), ("batch",), axis_types=(AxisType.Auto,)) if n_dev > 1 else None
-
-    def split(fn, specs):
-        if mesh is None:
-            return jax.jit(fn)
-        return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=P("batch"), check_vma=False))
+    s = p.setup
+    model, fdd_params, settings, kinds = s.model, s.fdd_params, s.settings, s.kinds
+    dt_s, substeps = p.c.dt_s, p.c.substeps
 
     def init_one(scenario, key):
         return campaign.init_one(model, fdd_params, scenario, key, dt_s)
@@ -218,10 +204,7 @@ def peer_functions(p: Problem, n_steps: int):
 def run_peer(p: Problem, fns, ids, n_steps: int, host_state: bool = True):
     """Python loop over time; the state goes back to NumPy arrays after every step if ``host_state``."""
     init, step, noise, finalize = fns
-    padded = p.padded(ids)
-    scen = jax.tree.map(lambda a: a[padded], p.scenarios)
-    truth = campaign.Truth(p.onset[padded], p.accept[padded])
-    keys = simulate.run_keys(p.c.seed, padded)
+    scen, truth, keys = p.inputs(ids)
     params, carry = init(scen, keys)
     to_host = (lambda tree: jax.tree.map(np.asarray, tree)) if host_state else (lambda tree: tree)
     carry = to_host(carry)
@@ -288,57 +271,46 @@ def measure_breakdown(n_scenarios: int, duration_s: float, repeats: int) -> dict
     """Run time of the campaign scan cut after each stage of its step, on one chunk.
 
     Each cut keeps a cheap running sum of the last stage's outputs in the carry so that XLA cannot
-    drop the stage; the last row is ``run_batch``'s scan itself. The differences between rows are
-    what each stage adds.
+    drop the stage; the last row is ``run_batch`` itself. The differences between rows are what
+    each stage adds.
     """
     p = Problem(n_scenarios, duration_s, n_scenarios)
-    ids = p.chunks[0]
-    padded = p.padded(ids)
-    scen = jax.tree.map(lambda a: a[padded], p.scenarios)
-    truth = campaign.Truth(p.onset[padded], p.accept[padded])
-    keys = simulate.run_keys(p.c.seed, padded)
-    c, n_steps = p.c, p.c.n_steps
+    s, c = p.setup, p.c
+    scen, truth, keys = p.inputs(p.chunks[0])
 
-    def one(stage, scenario, truth, key):
-        params, carry = campaign.init_one(p.model, p.fdd_params, scenario, key, c.dt_s)
+    def cut(stage, scenario, key):
+        params, (plant_state, fdd_state, _) = campaign.init_one(s.model, s.fdd_params, scenario, key, c.dt_s)
 
         def body(state, k, noise):
-            (plant_state, fdd_state, red), acc = state
+            plant_state, fdd_state, acc = state
             if stage == 0:
-                return ((plant_state, fdd_state, red), acc + noise.sum()), None
-            if stage == 3:
-                new, _, _ = campaign.step_one(params, p.fdd_params, p.settings, scenario, truth,
-                                              (plant_state, fdd_state, red), k, noise, c.dt_s, c.substeps, p.kinds)
-                return (new, acc), None
+                return (plant_state, fdd_state, acc + noise.sum()), None
             t = k * c.dt_s
-            plant_state, out = closed_loop.step(params, plant_state, t, noise, c.dt_s, c.substeps, p.kinds)
+            plant_state, out = closed_loop.step(params, plant_state, t, noise, c.dt_s, c.substeps, s.kinds)
             if stage == 1:
-                return ((plant_state, fdd_state, red), acc + out.u_m), None
-            fdd_state, fo = system.step(p.fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
+                return (plant_state, fdd_state, acc + out.u_m), None
+            fdd_state, fo = system.step(s.fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
                                         scenario.altitude_m, t, c.dt_s)
             sink = fo.theta.sum() + fo.theta_stall + fo.detected + fo.eta_signal + fo.eta_model
-            return ((plant_state, fdd_state, red), acc + sink), None
+            return (plant_state, fdd_state, acc + sink), None
 
-        (carry, acc), _ = simulate.scan_steps(body, (carry, jnp.zeros((), params.qbar_pa.dtype)), key, n_steps,
-                                              closed_loop.NOISE_DIM)
-        return acc, campaign.finalize(p.settings, carry[2], n_steps * c.dt_s)
+        zero = jnp.zeros((), params.qbar_pa.dtype)
+        return simulate.scan_steps(body, (plant_state, fdd_state, zero), key, c.n_steps, closed_loop.NOISE_DIM)[0][2]
 
-    n_dev = jax.device_count()
-    mesh = jax.make_mesh((n_dev,), ("batch",), axis_types=(AxisType.Auto,))
+    b = P("batch")
+    runs = [partial(split(jax.vmap(partial(cut, stage)), (b, b)), scen, keys) for stage in range(3)]
+    runs.append(partial(campaign.run_batch, s.model, s.fdd_params, s.settings, scen, truth, keys, c.n_steps, c.dt_s,
+                        c.substeps, s.kinds))
     rows = []
-    for stage, name in enumerate(STAGES):
-        fn = jax.jit(jax.shard_map(jax.vmap(partial(one, stage)), mesh=mesh, in_specs=(P("batch"),) * 3,
-                                   out_specs=P("batch"), check_vma=False))
-        jax.block_until_ready(fn(scen, truth, keys))
-        best = min(_timed(lambda: jax.block_until_ready(fn(scen, truth, keys))) for _ in range(repeats))
-        rows.append({"stage": name, "run_s": best, "throughput": p.size * n_steps / best})
-    return {"kind": "breakdown", "scenarios": p.size, "steps": n_steps, "devices": n_dev, "rows": rows}
-
-
-def _timed(fn) -> float:
-    start = time.perf_counter()
-    fn()
-    return time.perf_counter() - start
+    for name, run in zip(STAGES, runs):
+        jax.block_until_ready(run())
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            jax.block_until_ready(run())
+            times.append(time.perf_counter() - start)
+        rows.append({"stage": name, "run_s": min(times), "throughput": p.size * c.n_steps / min(times)})
+    return {"kind": "breakdown", "scenarios": p.size, "steps": c.n_steps, "devices": jax.device_count(), "rows": rows}
 
 
 def worker(spec: dict) -> dict:
@@ -428,7 +400,7 @@ def main(argv=None):
         print(f"  {r['scenarios']:,} x {r['steps']:,}: compile {r['compile_s']:.1f} s, runs "
               f"{', '.join(f'{t:.2f}' for t in r['all_runs_s'])} s ({r['chunks']} chunk(s) of {r['chunk']}, "
               f"{r['chunk_s_mean']:.2f} s each, fastest chunk {r['fastest_chunk_throughput']:.3g} scenario-steps/s), "
-              f"CPU/wall {r['cpu_per_wall']:.2f}, design {r['design_s']:.1f} s, "
+              f"CPU/wall {r['cpu_per_wall']:.2f}, setup {r['setup_s']:.1f} s, "
               f"RSS before run {r['rss_before_mb']:.0f} MB, load before {r['load_before'][0]:.2f}", flush=True)
     peer = spawn({"kind": "peer", "scenarios": args.peer_scenarios, "steps": args.peer_steps,
                   "repeats": args.repeats}, args.wait_quiet)

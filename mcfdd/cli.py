@@ -8,6 +8,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -183,26 +184,70 @@ def _prepare_campaign_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
     io.write_text(state, json.dumps(resolved, indent=1, sort_keys=True))
 
 
-def run_campaign(cfg: config.CampaignConfig, out: Path, resume: bool = False, on_chunk=None):
-    """Simulate every scenario of the campaign not yet written under ``out/scenarios``; returns the table."""
-    import jax
-    import pandas as pd
+class CampaignSetup(NamedTuple):
+    """What a campaign builds once before its chunk loop (host arrays over all n scenarios)."""
 
-    from mcfdd.analysis import batch, campaign, metrics, scenarios, simulate
+    model: object
+    names: tuple
+    fdd_params: object
+    settings: object
+    cols: dict
+    n: int
+    onset: np.ndarray  # fault onset times (s), float64
+    nearest: np.ndarray
+    accept: np.ndarray
+    scenarios: object
+    kinds: tuple
+    dtype: type
 
-    c = cfg.campaign
-    dtype = _dtype(c.precision)
+
+def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
+    """Plant, FDD, evaluation settings, the sampled design and each scenario's truth."""
+    from mcfdd.analysis import batch, scenarios
+
+    dtype = _dtype(cfg.campaign.precision)
     model = cfg.plant.model()
     bank, names = _load_bank(cfg.fdd, dtype)
-    fdd_params = cfg.fdd.params(bank, model.actuator.r_arm_m)
-    settings = cfg.evaluation.settings(model.actuator.r_arm_m)
     cols, n = cfg.design()
-    onset = scenarios.fault_onsets(cols, n)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
     nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind,
                                            np.asarray(cols.get("fault_size", np.zeros(n))))
     all_scenarios = scenarios.to_scenario(cols, dtype)
-    kinds = batch.kinds_in(all_scenarios.manoeuvre.kind)
+    return CampaignSetup(model, names, cfg.fdd.params(bank, model.actuator.r_arm_m),
+                         cfg.evaluation.settings(model.actuator.r_arm_m), cols, n,
+                         scenarios.fault_onsets(cols, n), nearest, accept, all_scenarios,
+                         batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
+
+
+def chunk_size(requested: int, n: int) -> int:
+    """Scenarios per chunk: ``requested`` (at most n) rounded up to LANE_BLOCK x devices."""
+    import jax
+
+    block = LANE_BLOCK * jax.device_count()
+    return -(-min(requested, max(n, 1)) // block) * block
+
+
+def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
+    """Scenarios, truths and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
+    import jax
+
+    from mcfdd.analysis import campaign, simulate
+
+    padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
+    scen = jax.tree.map(lambda a: a[padded], setup.scenarios)
+    truth = campaign.Truth(setup.onset[padded].astype(setup.dtype), setup.accept[padded])
+    return scen, truth, simulate.run_keys(seed, padded)
+
+
+def run_campaign(cfg: config.CampaignConfig, out: Path, resume: bool = False, on_chunk=None):
+    """Simulate every scenario of the campaign not yet written under ``out/scenarios``; returns the table."""
+    import pandas as pd
+
+    from mcfdd.analysis import campaign, metrics
+
+    c = cfg.campaign
+    setup = campaign_setup(cfg)
+    n, names, cols = setup.n, setup.names, setup.cols
     parts = out / "scenarios"
     done = np.zeros(n, dtype=bool)
     if resume and parts.is_dir():
@@ -210,20 +255,18 @@ def run_campaign(cfg: config.CampaignConfig, out: Path, resume: bool = False, on
             done[pd.read_parquet(part, columns=["scenario_id"])["scenario_id"].to_numpy()] = True
     todo = np.flatnonzero(~done)
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
-    block = LANE_BLOCK * jax.device_count()
-    size = -(-min(c.chunk_size, max(n, 1)) // block) * block
+    size = chunk_size(c.chunk_size, n)
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
     _say(f"campaign: {n} scenarios of {c.duration_s} s ({c.n_steps} steps, {c.precision}), "
          f"{len(todo)} to run in {len(chunks)} chunk(s) of {size}")
     progress = Progress(len(todo), len(chunks))
     for ids in chunks:
-        padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
-        scen = jax.tree.map(lambda a: a[padded], all_scenarios)
-        truth = campaign.Truth(onset[padded].astype(dtype), accept[padded])
-        raw = campaign.run_batch(model, fdd_params, settings, scen, truth, simulate.run_keys(c.seed, padded),
-                                 c.n_steps, c.dt_s, c.substeps, kinds)
+        scen, truth, keys = chunk_inputs(setup, c.seed, ids, size)
+        raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
+                                 c.substeps, setup.kinds)
         raw = {k: np.asarray(v)[:len(ids)] for k, v in raw.items()}
-        outc = metrics.outcomes(raw, onset[ids], accept[ids], nearest[ids], c.duration_s, cfg.evaluation.t_detec_s)
+        outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
+                                cfg.evaluation.t_detec_s)
         table = {"scenario_id": ids, **{k: np.asarray(v)[ids] for k, v in cols.items()}, **outc}
         for i in range(len(names)):
             table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
