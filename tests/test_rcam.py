@@ -1,0 +1,194 @@
+"""The RCAM rigid body against an independent NumPy model of TP-088-3 (matrix form), its trim and modes."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mcfdd.plant import atmosphere, rcam
+
+P = rcam.RcamParams()
+APPROACH_TAS = 80.0
+APPROACH_H = 1000.0 * atmosphere.FT_TO_M
+
+
+def reference_derivatives(x, u, rho, v_gust=0.0, p_gust=0.0):
+    """TP-088-3 in matrix form: stability-to-body rotation, cross products, inertia solve, DCM."""
+    cbar, lt, s, st, m, g = 6.6, 24.8, 260.0, 64.0, 120000.0, 9.81
+    vel, omega = np.array(x[0:3]), np.array(x[3:6])
+    phi, theta, psi = x[6:9]
+    da, dt, dr, th1, th2 = u
+    v_air = vel - np.array([0.0, v_gust, 0.0])
+    omega_air = omega - np.array([p_gust, 0.0, 0.0])
+    va = np.linalg.norm(v_air)
+    alpha = math.atan2(v_air[2], v_air[0])
+    beta = math.asin(v_air[1] / va)
+    qdyn = 0.5 * rho * va**2
+    if alpha <= math.radians(14.5):
+        cl_wb = 5.5 * (alpha - math.radians(-11.5))
+    else:
+        cl_wb = -768.5 * alpha**3 + 609.2 * alpha**2 - 155.2 * alpha + 15.212
+    eps = 0.25 * (alpha - math.radians(-11.5))
+    cl = cl_wb + 3.1 * (st / s) * (alpha - eps + dt + 1.3 * omega[1] * lt / va)
+    cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
+    cy = -1.6 * beta + 0.24 * dr
+    c_bs = np.array([[math.cos(alpha), 0.0, -math.sin(alpha)], [0.0, 1.0, 0.0],
+                     [math.sin(alpha), 0.0, math.cos(alpha)]])
+    fa = c_bs @ (qdyn * s * np.array([-cd, cy, -cl]))
+    eta = np.array([-1.4 * beta, -0.59 - 3.1 * st * lt / (s * cbar) * (alpha - eps),
+                    (1.0 - alpha * 180.0 / (15.0 * math.pi)) * beta])
+    dcm_dx = cbar / va * np.array([[-11.0, 0.0, 5.0], [0.0, -4.03 * st * lt**2 / (s * cbar**2), 0.0],
+                                   [1.7, 0.0, -11.5]])
+    dcm_du = np.array([[-0.6, 0.0, 0.22], [0.0, -3.1 * st * lt / (s * cbar), 0.0], [0.0, 0.0, -0.63]])
+    cm = eta + dcm_dx @ omega_air + dcm_du @ np.array([da, dt, dr])
+    ma = cm * qdyn * s * cbar + np.cross(fa, np.array([0.23 * cbar, 0.0, 0.10 * cbar]) - np.array([0.12 * cbar, 0, 0]))
+    fe1, fe2 = np.array([th1 * m * g, 0.0, 0.0]), np.array([th2 * m * g, 0.0, 0.0])
+    cg = np.array([0.23 * cbar, 0.0, 0.10 * cbar])
+    me = (np.cross(np.array([cg[0] - 0.0, -7.94 - cg[1], cg[2] + 1.9]), fe1)
+          + np.cross(np.array([cg[0] - 0.0, 7.94 - cg[1], cg[2] + 1.9]), fe2))
+    grav = m * g * np.array([-math.sin(theta), math.cos(theta) * math.sin(phi), math.cos(theta) * math.cos(phi)])
+    inertia = m * np.array([[40.07, 0.0, -2.0923], [0.0, 64.0, 0.0], [-2.0923, 0.0, 99.92]])
+    vdot = (fa + fe1 + fe2 + grav) / m - np.cross(omega, vel)
+    wdot = np.linalg.solve(inertia, ma + me - np.cross(omega, inertia @ omega))
+    h_phi = np.array([[1.0, math.sin(phi) * math.tan(theta), math.cos(phi) * math.tan(theta)],
+                      [0.0, math.cos(phi), -math.sin(phi)],
+                      [0.0, math.sin(phi) / math.cos(theta), math.cos(phi) / math.cos(theta)]])
+
+    def rot(axis, a):
+        c, s_ = math.cos(a), math.sin(a)
+        if axis == 0:
+            return np.array([[1, 0, 0], [0, c, s_], [0, -s_, c]])
+        if axis == 1:
+            return np.array([[c, 0, -s_], [0, 1, 0], [s_, 0, c]])
+        return np.array([[c, s_, 0], [-s_, c, 0], [0, 0, 1]])
+
+    c_bn = rot(0, phi) @ rot(1, theta) @ rot(2, psi)
+    ned = c_bn.T @ vel
+    return np.concatenate([vdot, wdot, h_phi @ omega, ned[:2], [-ned[2]]])
+
+
+def _state(x):
+    return rcam.RcamState(*[jnp.asarray(v) for v in x])
+
+
+def _controls(u):
+    return rcam.RcamControls(*[jnp.asarray(v) for v in u])
+
+
+def _module_derivatives(x, u, rho, v_gust=0.0, p_gust=0.0):
+    return np.array(rcam.derivatives(P, _state(x), _controls(u), rho, v_gust, p_gust))
+
+
+def _random_point(rng):
+    x = np.concatenate([[rng.uniform(60, 200), rng.uniform(-8, 8), rng.uniform(-10, 40)],
+                        rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.8, 0.8, 2), [rng.uniform(-3, 3)],
+                        rng.uniform(-1e3, 1e3, 2), [rng.uniform(0, 1e4)]])
+    u = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.17), rng.uniform(-0.5, 0.5),
+                  rng.uniform(0.01, 0.17), rng.uniform(0.01, 0.17)])
+    return x, u
+
+
+def test_derivatives_match_the_independent_model_at_random_states():
+    rng = np.random.default_rng(1)
+    high_alpha = 0
+    for _ in range(40):
+        x, u = _random_point(rng)
+        rho = rng.uniform(0.4, 1.225)
+        gusts = (0.0, 0.0) if rng.random() < 0.5 else (rng.uniform(-5, 5), rng.uniform(-0.05, 0.05))
+        ref = reference_derivatives(x, u, rho, *gusts)
+        got = _module_derivatives(x, u, rho, *gusts)
+        high_alpha += math.atan2(x[2], x[0]) > math.radians(14.5)
+        np.testing.assert_allclose(got, ref, rtol=1e-11, atol=1e-10)
+    assert high_alpha > 0, "the post-stall branch of CL_wb was not exercised"
+
+
+def test_trim_gives_zero_derivatives_and_is_batched():
+    vcas = jnp.array([140.0, 180.0, 230.0]) * atmosphere.KT_TO_M_S
+    alt = jnp.array([300.0, 3000.0, 7000.0])
+    trims = jax.vmap(lambda v, h: rcam.trim(P, v, h))(vcas, alt)
+    for i in range(3):
+        x = [float(leaf[i]) for leaf in trims.state]
+        u = [0.0, float(trims.stabiliser[i]), 0.0, float(trims.throttle[i]), float(trims.throttle[i])]
+        rho = float(atmosphere.isa(alt[i])[2])
+        d = reference_derivatives(x, u, rho)
+        np.testing.assert_allclose(d[:9], 0.0, atol=1e-9)
+        assert abs(d[11]) < 1e-9  # level: no climb
+        assert d[9] == pytest.approx(np.hypot(x[0], x[2]))  # flying north at the true airspeed
+        assert float(rcam.calibrated_airspeed(d[9], alt[i])) == pytest.approx(float(vcas[i]), rel=1e-9)
+
+
+def test_heavier_aircraft_trims_at_higher_alpha():
+    light = rcam.trim(P._replace(mass_kg=100000.0), 80.0, APPROACH_H)
+    heavy = rcam.trim(P._replace(mass_kg=140000.0), 80.0, APPROACH_H)
+    assert float(heavy.state.theta) > float(light.state.theta) + math.radians(1.0)
+    assert float(heavy.residual) < 1e-9
+
+
+def _jacobian(f, x0, u0, steps):
+    n = len(x0)
+    jac = np.zeros((n, n))
+    for j in range(n):
+        dx = np.zeros(n)
+        dx[j] = steps[j]
+        jac[:, j] = (f(x0 + dx, u0) - f(x0 - dx, u0)) / (2.0 * steps[j])
+    return jac
+
+
+def _modes(jac):
+    """Short-period and Dutch-roll eigenvalues: the complex pairs of the (u, w, q, theta) and (v, p, r, phi) blocks."""
+    lon = np.ix_([0, 2, 4, 7], [0, 2, 4, 7])
+    lat = np.ix_([1, 3, 5, 6], [1, 3, 5, 6])
+    sp = max(np.linalg.eigvals(jac[lon]), key=lambda z: abs(z))
+    dr = [z for z in np.linalg.eigvals(jac[lat]) if abs(z.imag) > 1e-6]
+    return sp, max(dr, key=lambda z: abs(z.imag))
+
+
+def test_short_period_and_dutch_roll_at_the_approach_point_match_the_independent_jacobian():
+    vcas = float(rcam.calibrated_airspeed(APPROACH_TAS, APPROACH_H))
+    trim = rcam.trim(P, vcas, APPROACH_H)
+    x0 = np.array([float(v) for v in trim.state])
+    u0 = np.array([0.0, float(trim.stabiliser), 0.0, float(trim.throttle), float(trim.throttle)])
+    rho = float(atmosphere.isa(APPROACH_H)[2])
+    steps = np.array([1e-3] * 3 + [1e-5] * 3 + [1e-5] * 3 + [1.0] * 3)
+    ref = _jacobian(lambda x, u: reference_derivatives(x, u, rho), x0, u0, steps)
+
+    def module_f(x):
+        return jnp.stack(rcam.derivatives(P, rcam.RcamState(*x), _controls(u0), rho))
+
+    exact = np.asarray(jax.jacfwd(module_f)(jnp.asarray(x0)))
+    sp_ref, dr_ref = _modes(ref)
+    sp, dr = _modes(exact)
+    assert sp == pytest.approx(sp_ref, rel=1e-6)
+    assert dr == pytest.approx(dr_ref, rel=1e-6)
+    # a damped short period of about 1.7 rad/s and a lighter, slower Dutch roll, as for a transport on approach
+    assert sp.real < 0 and 1.0 < abs(sp) < 3.0 and 0.3 < -sp.real / abs(sp) < 0.8
+    assert dr.real < 0 and 0.4 < dr.imag < 1.5 and -dr.real / abs(dr) < -sp.real / abs(sp)
+
+
+def test_runge_kutta_step_matches_solve_ivp():
+    from scipy.integrate import solve_ivp
+
+    rng = np.random.default_rng(4)
+    x, u = _random_point(rng)
+    x[2] = 3.0
+    rho = 1.0
+    sol = solve_ivp(lambda t, y: reference_derivatives(y, u, rho), (0.0, 0.5), x, rtol=1e-11, atol=1e-9)
+    state = _state(x)
+    for _ in range(50):
+        state = rcam.step(P, state, _controls(u), rho, 0.01)
+    np.testing.assert_allclose(np.array(state), sol.y[:, -1], rtol=1e-7, atol=1e-6)
+
+
+def test_float32_step_stays_close_to_float64():
+    trim = rcam.trim(P, 150.0 * atmosphere.KT_TO_M_S, 2000.0)
+    u = [0.01, float(trim.stabiliser), 0.02, float(trim.throttle), float(trim.throttle)]
+    x64 = trim.state
+    x32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), trim.state)
+    c32 = rcam.RcamControls(*[jnp.float32(v) for v in u])
+    for _ in range(200):
+        x64 = rcam.step(P, x64, _controls(u), 1.0066, 0.01)
+        x32 = rcam.step(P, x32, c32, jnp.float32(1.0066), 0.01)
+    assert x32.u.dtype == jnp.float32
+    np.testing.assert_allclose(np.array(x32)[:9], np.array(x64)[:9], rtol=2e-3, atol=2e-3)
