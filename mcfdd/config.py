@@ -191,6 +191,9 @@ class HingeConfig:
         return hinge.HingeSurface(self.area_m2, self.chord_m, self.ch0, self.ch_alpha_per_rad, self.ch_delta_per_rad)
 
 
+AIRCRAFT_MODELS = ("roll_axis", "rcam")
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class AircraftConfig:
     wing_area_m2: float = spec(260.0, lo=0.0, lo_open=True)
@@ -200,6 +203,8 @@ class AircraftConfig:
     roll_inertia_kg_m2: float = spec(4.81e6, lo=0.0, lo_open=True)
     monitored_share: float = spec(0.5, lo=0.0, hi=1.0, doc="share of roll power of the monitored aileron")
     max_mach: float = spec(0.82, lo=0.1, hi=0.95, doc="flight points above this Mach number are refused")
+    model: str = spec("roll_axis", choices=AIRCRAFT_MODELS, doc="roll_axis: the fast roll axis at a fixed flight "
+                      "point; rcam: the GARTEUR RCAM 6-DoF aircraft in closed loop (Vcas, h and alpha vary in a run)")
 
     def params(self) -> aircraft.AircraftParams:
         return aircraft.AircraftParams(
@@ -235,7 +240,16 @@ class PlantConfig:
     def model(self) -> closed_loop.PlantModel:
         return closed_loop.build_model(
             self.actuator.params(), self.aircraft.params(), self.control_law.params(), self.hinge.surface(),
-            vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in VCAS_RANGE_KT), altitude_range_m=ALTITUDE_RANGE_M)
+            vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in VCAS_RANGE_KT), altitude_range_m=ALTITUDE_RANGE_M,
+            aircraft_model=self.aircraft.model)
+
+    def check_manoeuvres(self, kinds, path: str):
+        """Refuse manoeuvre families that the roll axis cannot fly."""
+        if self.aircraft.model == "rcam":
+            return
+        for kind in kinds:
+            if kind in manoeuvres.FULL_AIRCRAFT:
+                raise ConfigError(f"{path}: {kind!r} needs the full aircraft; set plant.aircraft.model = \"rcam\"")
 
     def check_flight_point(self, vcas_kt: float, altitude_m: float, path: str):
         """Refuse a flight point above the Mach limit."""
@@ -270,6 +284,10 @@ class ManoeuvreConfig:
     freq_lo_hz: float = spec(0.1, lo=0.0, lo_open=True, hi=20.0)
     freq_hi_hz: float = spec(2.0, lo=0.0, lo_open=True, hi=20.0)
     sideslip_deg: float = spec(0.0, lo=-15.0, hi=15.0)
+    fpa_deg: float = spec(0.0, lo=-10.0, hi=10.0, doc="fpa_change: flight-path-angle target held for duration_s")
+    heading_change_deg: float = spec(0.0, lo=-180.0, hi=180.0, doc="heading_change: heading-target step")
+    bank_deg: float = spec(0.0, lo=-67.0, hi=67.0, doc="coordinated_turn: bank target held for duration_s")
+    delta_vcas_kt: float = spec(0.0, lo=-100.0, hi=100.0, doc="speed_change: autothrust speed-target step")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -284,6 +302,7 @@ class RunConfig:
     kd_scale: float = spec(1.0, lo=0.0, hi=3.0)
     hinge_scale: float = spec(1.0, lo=0.0, hi=3.0)
     roll_inertia_scale: float = spec(1.0, lo=0.5, hi=1.5)
+    mass_scale: float = spec(1.0, lo=0.7, hi=1.2, doc="full aircraft: mass over the nominal 120 t (trim and inertia)")
     fault: FaultConfig = spec(FaultConfig())
     manoeuvre: ManoeuvreConfig = spec(ManoeuvreConfig())
 
@@ -293,11 +312,14 @@ class RunConfig:
         return {
             "vcas_kt": self.vcas_kt, "altitude_m": self.altitude_m, "supply_pressure_scale": self.supply_pressure_scale,
             "kci_scale": self.kci_scale, "kd_scale": self.kd_scale, "hinge_scale": self.hinge_scale,
-            "roll_inertia_scale": self.roll_inertia_scale, "noise_std_mm": self.noise_std_mm,
+            "roll_inertia_scale": self.roll_inertia_scale, "mass_scale": self.mass_scale,
+            "noise_std_mm": self.noise_std_mm,
             "turbulence": self.turbulence, "fault_kind": self.fault.kind, "fault_size": self.fault.size,
             "fault_onset_s": self.fault.onset_s, "manoeuvre_kind": m.kind, "amplitude": m.amplitude,
             "t_start_s": m.t_start_s, "duration_s": m.duration_s, "hold_s": m.hold_s, "ramp_s": m.ramp_s,
             "freq_lo_hz": m.freq_lo_hz, "freq_hi_hz": m.freq_hi_hz, "sideslip_deg": m.sideslip_deg,
+            "fpa_deg": m.fpa_deg, "heading_change_deg": m.heading_change_deg, "bank_deg": m.bank_deg,
+            "delta_vcas_kt": m.delta_vcas_kt,
         }
 
 
@@ -439,6 +461,7 @@ class SimulateConfig:
                 raise ConfigError(f"runs[{i}].name: {name!r} is used by runs[{names.index(name)}] already")
         for i, run in enumerate(self.runs):
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
+            self.plant.check_manoeuvres([run.manoeuvre.kind], f"runs[{i}].manoeuvre.kind")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -455,6 +478,7 @@ class SweepConfig:
 
     def check(self, path):
         self.plant.check_flight_point(self.run.vcas_kt, self.run.altitude_m, "run")
+        self.plant.check_manoeuvres([self.run.manoeuvre.kind], "run.manoeuvre.kind")
 
     def table(self) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
         """Scenario columns of both sweeps, run names, family ('surface'/'leakage') and size per run."""
@@ -607,6 +631,8 @@ class CampaignConfig:
         alt = self.space.axis("altitude_m") or space.Axis("altitude_m", "const", (space.DEFAULTS["altitude_m"],))
         self.plant.check_flight_point(min(vcas.grid_values()), max(alt.grid_values()),
                                       "space: the lowest vcas_kt at the highest altitude_m")
+        kinds = self.space.axis("manoeuvre_kind")
+        self.plant.check_manoeuvres(kinds.grid_values() if kinds else (), "space.manoeuvre_kind")
 
     def design(self):
         """Scenario columns of the design (dict of arrays) and their number of rows."""

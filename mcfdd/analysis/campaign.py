@@ -19,6 +19,8 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
   detector's largest theta outside events before any fault (its false-alarm bound, eq. 26) and,
   per relevant event, the peak theta within ``stall_window_s`` of the onset (its smallest value
   over the run feeds the detection bound, eq. 27, read as "detected within the window").
+- flight point: the smallest and largest measured Vcas and altitude of the run (constant on the
+  roll axis; the full aircraft's move with its manoeuvre).
 - status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
 """
 
@@ -85,6 +87,8 @@ class Reduction(NamedTuple):
     eta_pending_signal: jnp.ndarray
     eta_pending_model: jnp.ndarray
     theta_stall_max_free: jnp.ndarray
+    vcas_range: jnp.ndarray  # (min, max), m/s
+    altitude_range: jnp.ndarray  # (min, max), m
 
 
 def reduction_init(n_models: int, dtype) -> Reduction:
@@ -98,7 +102,7 @@ def reduction_init(n_models: int, dtype) -> Reduction:
         event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
         n_identified_model=zero_i, worst_latency_signal=-inf, worst_latency_model=-inf, theta_peak_min=inf,
         eta_outside_signal=inf, eta_outside_model=inf, eta_pending_signal=inf, eta_pending_model=inf,
-        theta_stall_max_free=-inf)
+        theta_stall_max_free=-inf, vcas_range=jnp.stack([inf, -inf]), altitude_range=jnp.stack([inf, -inf]))
 
 
 def _close_event(s: Settings, red: Reduction, t_end, closing):
@@ -188,7 +192,14 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
         **_eta_outside(s, red, "model", settled & clear_of_stall & fdd.eta_model, opening, t),
         theta_stall_max_free=jnp.where(quiet, jnp.maximum(red.theta_stall_max_free, fdd.theta_stall),
                                        red.theta_stall_max_free),
+        vcas_range=_extend(red.vcas_range, plant.vcas_m_s),
+        altitude_range=_extend(red.altitude_range, plant.altitude_m),
     )
+
+
+def _extend(bounds, value):
+    """(min, max) widened to include ``value``."""
+    return jnp.stack([jnp.minimum(bounds[0], value), jnp.maximum(bounds[1], value)])
 
 
 def finalize(s: Settings, red: Reduction, t_end) -> dict:
@@ -208,6 +219,8 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
         "eta_outside_signal_time_s": red.eta_outside_signal, "eta_outside_model_time_s": red.eta_outside_model,
         "stall_theta_max_free": red.theta_stall_max_free,
         "stall_seen": jnp.isfinite(red.last_stall_end),
+        "vcas_min_m_s": red.vcas_range[0], "vcas_max_m_s": red.vcas_range[1],
+        "altitude_min_m": red.altitude_range[0], "altitude_max_m": red.altitude_range[1],
     }
 
 
@@ -228,7 +241,7 @@ def step_one(params: closed_loop.RunParams, fdd_params: system.FddParams, settin
     plant_state, fdd_state, red = carry
     t = k * dt_s
     plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-    fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s, scenario.altitude_m,
+    fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
                                 t, dt_s)
     return (plant_state, fdd_state, reduction_step(settings, truth, red, t, out, fo)), out, fo
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import betaincinv
 
+from mcfdd.plant.atmosphere import KT_TO_M_S
+
 
 def clopper_pearson(k, n, confidence: float = 0.95):
     """Exact two-sided binomial interval (lo, hi) for k successes in n trials (broadcasts).
@@ -90,6 +92,9 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "stall_theta_peak_min": _finite_or_nan(raw["stall_theta_peak_min"]),
         "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
         "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
+        **{f"{name}_{end}_{unit}": np.asarray(raw[f"{name}_{end}_{si}"], dtype=float) / scale
+           for name, si, unit, scale in (("vcas", "m_s", "kt", KT_TO_M_S), ("altitude", "m", "m", 1.0))
+           for end in ("min", "max")},
     }
 
 

@@ -28,10 +28,10 @@ PARAMETRIC = ("leakage", "surface_damage", "disconnection")
 
 DEFAULTS = {
     "vcas_kt": 250.0, "altitude_m": 3000.0, "supply_pressure_scale": 1.0, "kci_scale": 1.0, "kd_scale": 1.0,
-    "hinge_scale": 1.0, "roll_inertia_scale": 1.0, "noise_std_mm": 0.05, "turbulence": "light",
+    "hinge_scale": 1.0, "roll_inertia_scale": 1.0, "mass_scale": 1.0, "noise_std_mm": 0.05, "turbulence": "light",
     "fault_kind": "none", "fault_size": 0.0, "fault_onset_s": 10.0, "manoeuvre_kind": "quiet", "amplitude": 0.0,
     "t_start_s": 5.0, "duration_s": 2.0, "hold_s": 2.0, "ramp_s": 0.3, "freq_lo_hz": 0.1, "freq_hi_hz": 2.0,
-    "sideslip_deg": 0.0,
+    "sideslip_deg": 0.0, "fpa_deg": 0.0, "heading_change_deg": 0.0, "bank_deg": 0.0, "delta_vcas_kt": 0.0,
 }
 CATEGORICAL = {"turbulence": tuple(turbulence.LEVELS), "fault_kind": FAULT_KINDS, "manoeuvre_kind": manoeuvres.KINDS}
 DESIGNS = ("grid", "random", "lhs", "sobol")
@@ -68,6 +68,7 @@ def to_scenario(cols: dict, dtype=np.float32) -> closed_loop.Scenario:
         kd_scale=c["kd_scale"].astype(f),
         hinge_scale=c["hinge_scale"].astype(f),
         roll_inertia_scale=c["roll_inertia_scale"].astype(f),
+        mass_scale=c["mass_scale"].astype(f),
         noise_std_m=(c["noise_std_mm"] * 1e-3).astype(f),
         turbulence_level=level.astype(f),
         fault=actuator.ActuatorFault(
@@ -77,7 +78,10 @@ def to_scenario(cols: dict, dtype=np.float32) -> closed_loop.Scenario:
             kind=code, amplitude=c["amplitude"].astype(f), t_start_s=c["t_start_s"].astype(f),
             duration_s=c["duration_s"].astype(f), hold_s=c["hold_s"].astype(f), ramp_s=c["ramp_s"].astype(f),
             freq_lo_hz=c["freq_lo_hz"].astype(f), freq_hi_hz=c["freq_hi_hz"].astype(f),
-            sideslip_rad=np.radians(c["sideslip_deg"]).astype(f)),
+            sideslip_rad=np.radians(c["sideslip_deg"]).astype(f), fpa_rad=np.radians(c["fpa_deg"]).astype(f),
+            heading_change_rad=np.radians(c["heading_change_deg"]).astype(f),
+            bank_rad=np.radians(c["bank_deg"]).astype(f),
+            delta_vcas_m_s=(c["delta_vcas_kt"] * atmosphere.KT_TO_M_S).astype(f)),
     )
 
 

@@ -76,8 +76,8 @@ def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, sce
         plant_state, fdd_state = carry
         t = k * dt_s
         plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-        fdd_state, fdd_out = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
-                                         scenario.altitude_m, t, dt_s)
+        fdd_state, fdd_out = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
+                                         t, dt_s)
         return (plant_state, fdd_state), (out, fdd_out)
 
     return scan_steps(body, (plant_state, fdd_state), key, n_steps, closed_loop.NOISE_DIM)[1]

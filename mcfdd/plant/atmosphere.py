@@ -63,8 +63,12 @@ def mach(vcas_m_s, altitude_m):
 
 def calibrated_airspeed(mach_number, altitude_m):
     """Calibrated airspeed (m/s) of a Mach number at an altitude: the pitot relations inverted."""
-    _, pressure, _, _ = isa(altitude_m)
-    qc = pressure * ((1.0 + 0.2 * jnp.asarray(mach_number) ** 2) ** 3.5 - 1.0)
+    return calibrated_airspeed_at_pressure(mach_number, isa(altitude_m)[1])
+
+
+def calibrated_airspeed_at_pressure(mach_number, pressure_pa):
+    """Calibrated airspeed (m/s) of a Mach number at a static pressure (Pa)."""
+    qc = pressure_pa * ((1.0 + 0.2 * jnp.asarray(mach_number) ** 2) ** 3.5 - 1.0)
     return A0_M_S * jnp.sqrt(5.0 * ((qc / P0_PA + 1.0) ** (2.0 / 7.0) - 1.0))
 
 

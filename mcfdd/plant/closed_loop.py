@@ -14,6 +14,11 @@ step at time t:
 4. the roll axis advances with the effective aileron deflection.
 
 Everything is written for one scenario; batches come from ``jax.vmap``.
+
+The full aircraft (``plant.aircraft.model = "rcam"``) lives in :mod:`mcfdd.plant.rcam_loop`;
+:func:`prepare`, :func:`init` and :func:`step` dispatch on the type of the model (static), so
+callers use one interface. Both return outputs with the Vcas and altitude the FDD schedules on
+(constant on the roll axis).
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, turbulence
+from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, rcam_loop, turbulence
 
 DT_S = 0.01
 NOISE_DIM = 4  # normals per step: three for turbulence, one for the position sensor
@@ -39,6 +44,7 @@ class Scenario(NamedTuple):
     kd_scale: float = 1.0
     hinge_scale: float = 1.0
     roll_inertia_scale: float = 1.0
+    mass_scale: float = 1.0  # full aircraft only: mass of the run over the nominal one
     noise_std_m: float = 5e-5
     turbulence_level: float = 1.0
     fault: actuator.ActuatorFault = actuator.ActuatorFault()
@@ -68,6 +74,8 @@ class RunParams(NamedTuple):
     tas_m_s: jnp.ndarray
     roll_inertia_kg_m2: jnp.ndarray
     noise_std_m: jnp.ndarray
+    vcas_m_s: jnp.ndarray
+    altitude_m: jnp.ndarray
 
 
 class PlantState(NamedTuple):
@@ -90,22 +98,33 @@ class PlantOutputs(NamedTuple):
     stick: jnp.ndarray
     nu1: jnp.ndarray
     nu2: jnp.ndarray
+    vcas_m_s: jnp.ndarray
+    altitude_m: jnp.ndarray
 
 
 def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircraft.AircraftParams(),
                 law_params=control_law.RollLawParams(), surface=hinge.HingeSurface(),
-                vcas_range_m_s=(40.0, 220.0), altitude_range_m=(0.0, 13000.0), grid=(37, 27, 51)) -> PlantModel:
-    """Plant constants with the hinge table tabulated over the given ranges (uniform grids)."""
+                vcas_range_m_s=(40.0, 220.0), altitude_range_m=(0.0, 13000.0), grid=(37, 27, 51),
+                aircraft_model: str = "roll_axis"):
+    """Plant constants with the hinge table tabulated over the given ranges (uniform grids).
+
+    ``aircraft_model`` is ``"roll_axis"`` (a :class:`PlantModel`) or ``"rcam"`` (a
+    :class:`~mcfdd.plant.rcam_loop.RcamModel` with the same table).
+    """
     max_delta = actuator_params.max_deflection_rad
     table = hinge.build_table(
         surface, actuator_params.r_arm_m, lambda qbar: aircraft.trim_alpha(aircraft_params, qbar),
         jnp.linspace(*vcas_range_m_s, grid[0]), jnp.linspace(*altitude_range_m, grid[1]),
         jnp.linspace(-max_delta, max_delta, grid[2]))
+    if aircraft_model == "rcam":
+        return rcam_loop.build_model(actuator_params, aircraft_params, law_params, surface, table)
     return PlantModel(actuator_params, aircraft_params, law_params, table)
 
 
 def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunParams:
     """Per-run parameters: uncertainties applied, gains scheduled, turbulence discretised."""
+    if isinstance(model, rcam_loop.RcamModel):
+        return rcam_loop.prepare(model, scenario, dt_s)
     nominal = model.actuator
     act = nominal._replace(
         supply_pressure_pa=nominal.supply_pressure_pa * scenario.supply_pressure_scale,
@@ -131,11 +150,15 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
         tas_m_s=tas,
         roll_inertia_kg_m2=model.aircraft.roll_inertia_kg_m2 * scenario.roll_inertia_scale,
         noise_std_m=jnp.asarray(scenario.noise_std_m),
+        vcas_m_s=jnp.asarray(scenario.vcas_m_s),
+        altitude_m=jnp.asarray(scenario.altitude_m),
     )
 
 
 def init(params: RunParams, noise3) -> PlantState:
     """Trimmed wings-level start; turbulence from its stationary distribution (3 normals)."""
+    if isinstance(params, rcam_loop.RcamRunParams):
+        return rcam_loop.init(params, noise3)
     zero = jnp.zeros_like(params.qbar_pa)
     return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
                       turbulence.init(params.turbulence, noise3))
@@ -147,6 +170,8 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
 
     Returns (new state, :class:`PlantOutputs` at time ``t_s``).
     """
+    if isinstance(params, rcam_loop.RcamRunParams):
+        return rcam_loop.step(params, state, t_s, noise, dt_s, substeps, kinds)
     act = params.actuator
     pilot = manoeuvres.inputs(params.manoeuvre, t_s, kinds)
     gust_next, (v_gust, p_gust) = turbulence.step(params.turbulence, state.gust, noise[:3])
@@ -172,6 +197,8 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
         stick=pilot.stick,
         nu1=out.nu1,
         nu2=out.nu2,
+        vcas_m_s=params.vcas_m_s,
+        altitude_m=params.altitude_m,
     )
     return PlantState(act_state, roll, integrator, gust_next), outputs
 

@@ -47,10 +47,14 @@ def roll_rate_demand(params: RollLawParams, stick, phi_rad):
     """Demanded roll rate (rad/s) from stick deflection in [-1, 1] and bank angle."""
     neutral = jnp.abs(stick) < params.stick_deadband
     hold = -params.bank_return_gain_1_s * (phi_rad - jnp.clip(phi_rad, -params.bank_hold_rad, params.bank_hold_rad))
-    demand = jnp.where(neutral, hold, params.max_roll_rate_rad_s * jnp.clip(stick, -1.0, 1.0))
+    return protect(params, jnp.where(neutral, hold, params.max_roll_rate_rad_s * jnp.clip(stick, -1.0, 1.0)), phi_rad)
+
+
+def protect(params: RollLawParams, demand_rad_s, phi_rad):
+    """Bank protection: the demanded roll rate limited so that |phi| approaches the limit smoothly."""
     upper = params.protection_gain_1_s * (params.bank_protection_rad - phi_rad)
     lower = -params.protection_gain_1_s * (params.bank_protection_rad + phi_rad)
-    return jnp.clip(demand, lower, upper)
+    return jnp.clip(demand_rad_s, lower, upper)
 
 
 def init():

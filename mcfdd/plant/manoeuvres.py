@@ -19,6 +19,18 @@ Families (``t`` counts from ``t_start_s``; ``A`` amplitude, ``D`` duration, ``H`
 - ol_multisine: five Schroeder-phased sines spread log-uniformly over the band, scaled by 1/2.5 and
   clipped so that the peak stays within A
 
+Families of the full aircraft (``plant.aircraft.model = "rcam"``; the paper's Section 6.2.2):
+- level_flight: nothing (as quiet)
+- pitch_doublet: longitudinal stick +A for D, then -A for D (positive: pull, nose up)
+- pedal_doublet: pedal +A for D, then -A for D (full pedal demands the law's largest sideslip)
+- nose_up, nose_down: longitudinal stick |A| pulled or pushed for D, then released
+- fpa_change: flight-path-angle target ``fpa_rad`` for D, then level again
+- heading_change: heading target moved by ``heading_change_rad`` from ``t_start_s`` on
+- speed_change: autothrust target moved by ``delta_vcas_m_s`` from ``t_start_s`` on (ramped)
+- coordinated_turn: bank target ``bank_rad`` for D, then wings level; the rudder coordinates
+
+A closed-loop input is held within its box; ramps of ``ramp_s`` lead in and out.
+
 Which families a batch contains is static (``kinds``): only their profiles are computed.
 """
 
@@ -30,9 +42,13 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 KINDS = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip",
-         "ol_step", "ol_doublet", "ol_sweep", "ol_multisine")
+         "ol_step", "ol_doublet", "ol_sweep", "ol_multisine",
+         "level_flight", "pitch_doublet", "pedal_doublet", "nose_up", "nose_down", "fpa_change", "heading_change",
+         "speed_change", "coordinated_turn")
 KIND_CODE = {name: code for code, name in enumerate(KINDS)}
 OPEN_LOOP = frozenset(KIND_CODE[k] for k in KINDS if k.startswith("ol_"))
+FULL_AIRCRAFT = ("pitch_doublet", "pedal_doublet", "nose_up", "nose_down", "fpa_change", "heading_change",
+                 "speed_change", "coordinated_turn")  # families that only the rcam aircraft can fly
 _MULTISINE_TONES = 5
 _MULTISINE_PEAK = 2.5  # the unit-amplitude Schroeder sum peaks at 2.0-2.4 over the usual bands
 
@@ -47,15 +63,32 @@ class ManoeuvreParams(NamedTuple):
     freq_lo_hz: float = 0.1
     freq_hi_hz: float = 2.0
     sideslip_rad: float = 0.0
+    fpa_rad: float = 0.0
+    heading_change_rad: float = 0.0
+    bank_rad: float = 0.0
+    delta_vcas_m_s: float = 0.0
 
 
 class ManoeuvreInputs(NamedTuple):
-    """Pilot inputs at one time: stick in [-1, 1], sideslip (rad), open-loop command (fraction)."""
+    """Pilot inputs at one time: stick in [-1, 1], sideslip (rad), open-loop command (fraction).
+
+    The full aircraft also reads the longitudinal stick and pedal in [-1, 1], the flight-path
+    angle target (rad), the heading-target change (rad, with its mode flag), the bank target (rad,
+    with its mode flag) and the change of the speed target (m/s).
+    """
 
     stick: jnp.ndarray
     sideslip_rad: jnp.ndarray
     command: jnp.ndarray
     open_loop: jnp.ndarray
+    pitch_stick: jnp.ndarray = 0.0
+    pedal: jnp.ndarray = 0.0
+    fpa_rad: jnp.ndarray = 0.0
+    heading_change_rad: jnp.ndarray = 0.0
+    heading_mode: jnp.ndarray = False
+    bank_rad: jnp.ndarray = 0.0
+    bank_mode: jnp.ndarray = False
+    delta_vcas_m_s: jnp.ndarray = 0.0
 
 
 def _box(t, start, end, ramp):
@@ -66,15 +99,21 @@ def _box(t, start, end, ramp):
 def _profile(code: int, m: ManoeuvreParams, t):
     d, h, r = m.duration_s, m.hold_s, jnp.maximum(m.ramp_s, 1e-3)
     name = KINDS[code]
-    if name in ("quiet", "sideslip"):
+    if name in ("quiet", "sideslip", "level_flight", "heading_change", "speed_change"):
         return jnp.zeros_like(t)
-    if name in ("doublet", "ol_doublet"):
+    if name in ("doublet", "ol_doublet", "pitch_doublet", "pedal_doublet"):
         return m.amplitude * (_box(t, 0.0, d, r) - _box(t, d, 2.0 * d, r))
     if name == "bank_to_bank":
         return m.amplitude * (_box(t, 0.0, d, r) - _box(t, d + h, 3.0 * d + h, r)
                               + _box(t, 3.0 * d + 2.0 * h, 4.0 * d + 2.0 * h, r))
     if name in ("roll_protection", "ol_step"):
         return m.amplitude * _box(t, 0.0, d, r)
+    if name in ("nose_up", "nose_down"):
+        return (1.0 if name == "nose_up" else -1.0) * jnp.abs(m.amplitude) * _box(t, 0.0, d, r)
+    if name == "fpa_change":
+        return m.fpa_rad * _box(t, 0.0, d, r)
+    if name == "coordinated_turn":
+        return m.bank_rad * _box(t, 0.0, d, r)
     tc = jnp.clip(t, 0.0, d)
     window = _box(t, 0.0, d, r)
     if name == "ol_sweep":
@@ -103,5 +142,28 @@ def inputs(m: ManoeuvreParams, t_s, kinds: tuple[int, ...]) -> ManoeuvreInputs:
         d = m.duration_s
         profile = _box(t, 0.0, d, ramp) - _box(t, d + m.hold_s, 2.0 * d + m.hold_s, ramp)
         sideslip = jnp.where(m.kind == KIND_CODE["sideslip"], m.sideslip_rad * profile, 0.0)
-    stick = jnp.where(open_loop, 0.0, value)
-    return ManoeuvreInputs(stick, sideslip, jnp.where(open_loop, value, 0.0), open_loop)
+    channels = {}
+    for channel, families in (("stick", ("doublet", "bank_to_bank", "roll_protection")),
+                              ("pitch_stick", ("pitch_doublet", "nose_up", "nose_down")),
+                              ("pedal", ("pedal_doublet",)), ("fpa_rad", ("fpa_change",)),
+                              ("bank_rad", ("coordinated_turn",))):
+        mine = jnp.zeros_like(value, dtype=bool)
+        for code in {KIND_CODE[f] for f in families} & set(kinds):
+            mine = mine | (m.kind == code)
+        channels[channel] = jnp.where(mine, value, 0.0)
+
+    def mode(name):
+        if KIND_CODE[name] not in kinds:
+            return jnp.zeros_like(value, dtype=bool)
+        return (t >= 0.0) & (m.kind == KIND_CODE[name])
+
+    heading_mode, bank_mode = mode("heading_change"), mode("coordinated_turn")
+    speed = jnp.zeros_like(value)
+    if KIND_CODE["speed_change"] in kinds:
+        ramp = jnp.maximum(m.ramp_s, 1e-3)
+        speed = jnp.where(m.kind == KIND_CODE["speed_change"], m.delta_vcas_m_s * jnp.clip(t / ramp, 0.0, 1.0), 0.0)
+    return ManoeuvreInputs(channels["stick"], sideslip, jnp.where(open_loop, value, 0.0), open_loop,
+                           pitch_stick=channels["pitch_stick"], pedal=channels["pedal"], fpa_rad=channels["fpa_rad"],
+                           heading_change_rad=jnp.where(heading_mode, m.heading_change_rad, 0.0),
+                           heading_mode=heading_mode, bank_rad=channels["bank_rad"], bank_mode=bank_mode,
+                           delta_vcas_m_s=speed)

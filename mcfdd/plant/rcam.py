@@ -182,8 +182,11 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,
-         v_gust_m_s=0.0, p_gust_rad_s=0.0) -> RcamState:
-    """One classical Runge-Kutta step of ``dt_s`` with controls, density and gusts held."""
+         v_gust_m_s=0.0, p_gust_rad_s=0.0):
+    """One classical Runge-Kutta step of ``dt_s`` with controls, density and gusts held.
+
+    Returns (new state, derivatives at the start of the step).
+    """
     def f(x):
         return derivatives(params, x, controls, density_kg_m3, v_gust_m_s, p_gust_rad_s)
 
@@ -194,7 +197,8 @@ def step(params: RcamParams, state: RcamState, controls: RcamControls, density_k
     k2 = f(add(state, k1, 0.5 * dt_s))
     k3 = f(add(state, k2, 0.5 * dt_s))
     k4 = f(add(state, k3, dt_s))
-    return jax.tree.map(lambda x, a, b, c, d: x + dt_s / 6.0 * (a + 2.0 * (b + c) + d), state, k1, k2, k3, k4)
+    new = jax.tree.map(lambda x, a, b, c, d: x + dt_s / 6.0 * (a + 2.0 * (b + c) + d), state, k1, k2, k3, k4)
+    return new, k1
 
 
 def true_airspeed(vcas_m_s, altitude_m):

@@ -1,0 +1,159 @@
+"""A normal-law-like flight control law of the full aircraft (DESIGN.md section 3, issue 15).
+
+Four channels, each with gains scheduled on the dynamic pressure through the aircraft's control
+powers (computed by the caller from the measured flight point every sample):
+
+- roll: the roll-rate law of :mod:`mcfdd.plant.control_law` (stick demands roll rate, neutral
+  stick holds bank up to 33 deg, bank protection at 67 deg). In the bank-target mode
+  (coordinated turn) and the heading-target mode (bank demand ``atan(V k_psi (psi_t - psi) / g)``
+  limited to ``nav_bank``) the demanded roll rate is ``k_phi (phi_t - phi)``, still protected.
+- pitch: the longitudinal stick demands a load-factor increment ``dnz = stick max_dnz``, i.e. a
+  pitch rate ``g dnz / V``; with the stick neutral the law holds the flight-path angle it had at
+  release (plus the FPA target of the fpa_change manoeuvre) through ``q_c = k_gamma (gamma_t -
+  gamma)``, with the pitch rate of a level turn added up to 33 deg of bank. A PI law on the
+  pitch-rate error moves the stabiliser, ``k_p = 1 / (tau |M_dt|)``; its integral is a pitch
+  attitude hold.
+- yaw: yaw damper on ``r - g sin(phi) cos(theta) / V`` (turn coordination) and a PI law on the
+  sideslip error towards the demanded sideslip (steady-sideslip manoeuvre, pedal), both divided
+  by the rudder power ``|N_dr|``.
+- autothrust: a PI law on the calibrated-airspeed error towards the speed target, divided by the
+  acceleration per unit throttle.
+
+Integrators stop while their output saturates in the direction they push (anti-windup).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from mcfdd.plant import control_law
+from mcfdd.plant.atmosphere import G0_M_S2
+
+
+class FlightLawParams(NamedTuple):
+    max_load_factor_step: float = 1.0  # g demanded beyond 1 g by full longitudinal stick
+    path_gain_1_s: float = 0.6
+    pitch_time_constant_s: float = 0.5
+    pitch_integral_1_s: float = 1.0
+    stabiliser_min_rad: float = math.radians(-25.0)
+    stabiliser_max_rad: float = math.radians(10.0)
+    yaw_damping_1_s: float = 1.5
+    sideslip_gain_1_s2: float = 1.0
+    sideslip_integral_1_s3: float = 0.5
+    rudder_max_rad: float = math.radians(30.0)
+    pedal_sideslip_rad: float = math.radians(10.0)  # sideslip demanded by full pedal
+    bank_gain_1_s: float = 0.5
+    heading_gain_1_s: float = 0.1
+    nav_bank_rad: float = math.radians(25.0)
+    speed_gain_1_s: float = 0.15
+    speed_integral_1_s2: float = 0.01
+    throttle_min_rad: float = math.radians(0.5)
+    throttle_max_rad: float = math.radians(10.0)
+    stick_deadband: float = 0.02
+
+
+class ControlPowers(NamedTuple):
+    """Nominal control powers of the flight point: roll damping L_p (1/s), L_da, M_dt, N_dr (1/s^2),
+    and the acceleration per rad of throttle on both engines (m/s^2)."""
+
+    roll_damping: jnp.ndarray
+    aileron: jnp.ndarray
+    stabiliser: jnp.ndarray
+    rudder: jnp.ndarray
+    throttle: jnp.ndarray
+
+
+class Measurements(NamedTuple):
+    """What the law reads (rad, rad/s, m/s): body rates, attitude, air data and flight path."""
+
+    p: jnp.ndarray
+    q: jnp.ndarray
+    r: jnp.ndarray
+    phi: jnp.ndarray
+    theta: jnp.ndarray
+    psi: jnp.ndarray
+    beta: jnp.ndarray
+    gamma: jnp.ndarray
+    tas: jnp.ndarray
+    vcas: jnp.ndarray
+
+
+class Trim(NamedTuple):
+    """Trim values the law starts from: stabiliser (rad), throttle (rad), speed target (m/s CAS)."""
+
+    stabiliser: jnp.ndarray
+    throttle: jnp.ndarray
+    vcas: jnp.ndarray
+
+
+class LawState(NamedTuple):
+    roll: jnp.ndarray
+    pitch: jnp.ndarray
+    sideslip: jnp.ndarray
+    speed: jnp.ndarray
+    path_rad: jnp.ndarray  # flight-path angle held with the stick neutral
+
+
+class Commands(NamedTuple):
+    aileron: jnp.ndarray
+    stabiliser: jnp.ndarray
+    rudder: jnp.ndarray
+    throttle: jnp.ndarray
+
+
+def init(zero) -> LawState:
+    """Integrators empty, level flight path held."""
+    return LawState(zero, zero, zero, zero, zero)
+
+
+def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s):
+    """``offset + kp (e + ki integral e)`` limited to [lo, hi]; returns (new integrator, output)."""
+    raw = offset + kp * (error + ki * integrator)
+    push = kp * error
+    winding = ((raw > hi) & (push > 0)) | ((raw < lo) & (push < 0))
+    return jnp.where(winding, integrator, integrator + dt_s * error), jnp.clip(raw, lo, hi)
+
+
+def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, powers: ControlPowers,
+         state: LawState, pilot, meas: Measurements, max_aileron_rad, dt_s: float):
+    """One sample of the four channels. ``pilot`` is a :class:`~mcfdd.plant.manoeuvres.ManoeuvreInputs`.
+
+    Returns (new state, :class:`Commands` in rad).
+    """
+    g_v = G0_M_S2 / meas.tas
+    heading_error = jnp.arctan2(jnp.sin(pilot.heading_change_rad - meas.psi), jnp.cos(pilot.heading_change_rad - meas.psi))
+    nav_bank = jnp.clip(jnp.arctan(params.heading_gain_1_s * heading_error / g_v), -params.nav_bank_rad,
+                        params.nav_bank_rad)
+    bank_target = jnp.where(pilot.heading_mode, nav_bank, pilot.bank_rad)
+    target_rate = control_law.protect(
+        roll, jnp.clip(params.bank_gain_1_s * (bank_target - meas.phi), -roll.max_roll_rate_rad_s,
+                       roll.max_roll_rate_rad_s), meas.phi)
+    p_cmd = jnp.where(pilot.heading_mode | pilot.bank_mode, target_rate,
+                      control_law.roll_rate_demand(roll, pilot.stick, meas.phi))
+    gains = control_law.schedule(roll, powers.roll_damping, powers.aileron)
+    roll_int, aileron = control_law.step(roll, gains, state.roll, p_cmd, meas.p, max_aileron_rad, dt_s)
+
+    flying = jnp.abs(pilot.pitch_stick) >= params.stick_deadband
+    path = jnp.where(flying, meas.gamma, state.path_rad)
+    bank = jnp.clip(meas.phi, -roll.bank_hold_rad, roll.bank_hold_rad)
+    q_cmd = g_v * jnp.sin(bank) * jnp.tan(bank) + jnp.where(
+        flying, g_v * params.max_load_factor_step * jnp.clip(pilot.pitch_stick, -1.0, 1.0),
+        params.path_gain_1_s * (path + pilot.fpa_rad - meas.gamma))
+    pitch_int, stabiliser = _pi(state.pitch, q_cmd - meas.q, trim.stabiliser,
+                                -1.0 / (params.pitch_time_constant_s * jnp.abs(powers.stabiliser)),
+                                params.pitch_integral_1_s, params.stabiliser_min_rad, params.stabiliser_max_rad, dt_s)
+
+    beta_cmd = pilot.sideslip_rad + params.pedal_sideslip_rad * jnp.clip(pilot.pedal, -1.0, 1.0)
+    rudder_per_accel = 1.0 / jnp.abs(powers.rudder)
+    damper = rudder_per_accel * params.yaw_damping_1_s * (meas.r - g_v * jnp.sin(meas.phi) * jnp.cos(meas.theta))
+    slip_int, rudder = _pi(state.sideslip, beta_cmd - meas.beta, damper, rudder_per_accel * params.sideslip_gain_1_s2,
+                           params.sideslip_integral_1_s3 / params.sideslip_gain_1_s2, -params.rudder_max_rad,
+                           params.rudder_max_rad, dt_s)
+
+    speed_int, throttle = _pi(state.speed, trim.vcas + pilot.delta_vcas_m_s - meas.vcas, trim.throttle,
+                              params.speed_gain_1_s / powers.throttle, params.speed_integral_1_s2 / params.speed_gain_1_s,
+                              params.throttle_min_rad, params.throttle_max_rad, dt_s)
+    return LawState(roll_int, pitch_int, slip_int, speed_int, path), Commands(aileron, stabiliser, rudder, throttle)
