@@ -177,8 +177,11 @@ def test_runge_kutta_step_matches_solve_ivp():
     sol = solve_ivp(lambda t, y: reference_derivatives(y, u, rho), (0.0, 0.5), x, rtol=1e-11, atol=1e-9)
     state = _state(x)
     for _ in range(50):
-        state = rcam.step(P, state, _controls(u), rho, 0.01)
+        before = state
+        state, rates = rcam.step(P, state, _controls(u), rho, 0.01)
     np.testing.assert_allclose(np.array(state), sol.y[:, -1], rtol=1e-7, atol=1e-6)
+    np.testing.assert_allclose(np.array(rates), reference_derivatives(np.array(before), u, rho), rtol=1e-10,
+                               atol=1e-10)  # the step also returns the derivatives where it started
 
 
 def test_float32_step_stays_close_to_float64():
@@ -188,7 +191,141 @@ def test_float32_step_stays_close_to_float64():
     x32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), trim.state)
     c32 = rcam.RcamControls(*[jnp.float32(v) for v in u])
     for _ in range(200):
-        x64 = rcam.step(P, x64, _controls(u), 1.0066, 0.01)
-        x32 = rcam.step(P, x32, c32, jnp.float32(1.0066), 0.01)
+        x64 = rcam.step(P, x64, _controls(u), 1.0066, 0.01)[0]
+        x32 = rcam.step(P, x32, c32, jnp.float32(1.0066), 0.01)[0]
     assert x32.u.dtype == jnp.float32
     np.testing.assert_allclose(np.array(x32)[:9], np.array(x64)[:9], rtol=2e-3, atol=2e-3)
+
+
+# --------------------------------------------------------------------------------------------
+# The full aircraft in closed loop
+
+CLOSED_LOOP_RUNS = {
+    "level_low": dict(vcas_kt=150.0, altitude_m=500.0, manoeuvre_kind="level_flight"),
+    "level_high": dict(vcas_kt=240.0, altitude_m=7000.0, mass_scale=0.9, manoeuvre_kind="level_flight"),
+    "speed": dict(vcas_kt=150.0, altitude_m=1000.0, manoeuvre_kind="speed_change", delta_vcas_kt=10.0, t_start_s=5.0),
+    "turn": dict(vcas_kt=200.0, altitude_m=3000.0, manoeuvre_kind="coordinated_turn", bank_deg=30.0, t_start_s=5.0,
+                 duration_s=40.0, ramp_s=1.0),
+    "protection": dict(vcas_kt=200.0, altitude_m=3000.0, manoeuvre_kind="roll_protection", amplitude=1.0,
+                       t_start_s=5.0, duration_s=20.0),
+    "heading": dict(vcas_kt=180.0, altitude_m=2000.0, manoeuvre_kind="heading_change", heading_change_deg=-40.0,
+                    t_start_s=5.0),
+}
+
+
+@pytest.fixture(scope="module")
+def closed_loop_runs():
+    from mcfdd.analysis import batch, scenarios, simulate
+    from mcfdd.plant import closed_loop
+
+    model = closed_loop.build_model(vcas_range_m_s=(40.0, 220.0), grid=(19, 14, 11), aircraft_model="rcam")
+    rows = list(CLOSED_LOOP_RUNS.values())
+    cols = {k: np.array([r.get(k, v) for r in rows]) for k, v in scenarios.DEFAULTS.items()}
+    cols["turbulence"] = np.full(len(rows), "none")
+    cols["noise_std_mm"] = np.zeros(len(rows))
+    scen = scenarios.to_scenario(cols, np.float64)
+    out = simulate.plant_batch(model, scen, simulate.run_keys(0, range(len(rows))), 6000, 0.01, 4,
+                               batch.kinds_in(scen.manoeuvre.kind))
+    return {name: jax.tree.map(lambda a, i=i: np.asarray(a[i]), out) for i, name in enumerate(CLOSED_LOOP_RUNS)}
+
+
+def _kt(out):
+    return out.vcas_m_s / atmosphere.KT_TO_M_S
+
+
+@pytest.mark.parametrize("name", ["level_low", "level_high"])
+def test_trimmed_level_flight_holds_altitude_and_speed_for_60_s(closed_loop_runs, name):
+    out, run = closed_loop_runs[name], CLOSED_LOOP_RUNS[name]
+    assert np.abs(out.altitude_m - run["altitude_m"]).max() < 1.0
+    assert np.abs(_kt(out) - run["vcas_kt"]).max() < 0.2
+    assert np.abs(np.degrees(out.phi_rad)).max() < 0.1 and np.abs(out.nz_g - 1.0).max() < 0.01
+
+
+def test_speed_change_reaches_the_new_speed(closed_loop_runs):
+    out, run = closed_loop_runs["speed"], CLOSED_LOOP_RUNS["speed"]
+    target = run["vcas_kt"] + run["delta_vcas_kt"]
+    t = np.arange(out.vcas_m_s.shape[0]) * 0.01
+    settled = t >= 45.0
+    assert np.abs(_kt(out)[settled] - target).max() < 1.0  # within 1 kt 40 s after the target step
+    assert _kt(out).max() < target + 3.0  # overshoot below 3 kt
+    assert np.abs(out.altitude_m - run["altitude_m"]).max() < 30.0  # the path hold keeps the altitude meanwhile
+
+
+def test_coordinated_turn_keeps_sideslip_small(closed_loop_runs):
+    out, run = closed_loop_runs["turn"], CLOSED_LOOP_RUNS["turn"]
+    t = np.arange(out.phi_rad.shape[0]) * 0.01
+    held = (t > 20.0) & (t < 44.0)
+    assert np.abs(np.degrees(out.phi_rad[held]) - run["bank_deg"]).max() < 1.0
+    assert np.abs(np.degrees(out.beta_rad)).max() < 1.0
+    # a coordinated level turn: yaw rate g tan(phi) / V in the Euler heading rate, load factor 1 / cos(phi)
+    rate = np.gradient(np.unwrap(out.psi_rad), t)[held]
+    tas = np.array(rcam.true_airspeed(out.vcas_m_s[held], out.altitude_m[held]))
+    np.testing.assert_allclose(rate, 9.81 * np.tan(out.phi_rad[held]) / tas, rtol=0.05)
+    np.testing.assert_allclose(out.nz_g[held], 1.0 / np.cos(out.phi_rad[held]), rtol=0.03)
+    assert np.abs(np.degrees(out.phi_rad[t > 55.0])).max() < 2.0  # rolled out after the turn
+
+
+def test_roll_protection_bounds_bank_at_67_deg(closed_loop_runs):
+    phi = np.degrees(closed_loop_runs["protection"].phi_rad)
+    assert 60.0 < np.abs(phi).max() <= 67.0
+
+
+def test_heading_change_captures_the_new_heading(closed_loop_runs):
+    out, run = closed_loop_runs["heading"], CLOSED_LOOP_RUNS["heading"]
+    psi = np.degrees(out.psi_rad)
+    assert np.abs(psi[-1000:] - run["heading_change_deg"]).max() < 1.0
+    assert np.abs(np.degrees(out.phi_rad)).max() <= 25.5  # navigation bank limit
+
+
+def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules_on_it():
+    """run_batch's Vcas/altitude ranges against the full histories of the same rcam runs."""
+    from mcfdd import cli, config
+    from mcfdd.analysis import batch, campaign, scenarios, simulate
+
+    cfg = config.parse(config.CampaignConfig, {
+        "campaign": {"scenarios": 3, "duration_s": 12.0, "design": "random"},
+        "plant": {"aircraft": {"model": "rcam"}},
+        "space": {"vcas_kt": [150.0, 220.0], "altitude_m": [500.0, 5000.0],
+                  "manoeuvre_kind": ["speed_change", "fpa_change", "pitch_doublet"], "delta_vcas_kt": 15.0,
+                  "fpa_deg": 4.0, "amplitude": 0.5, "t_start_s": 1.0, "duration_s": 3.0}})
+    cols, n = cfg.design()
+    model = cfg.plant.model()
+    bank, _ = cli._load_bank(cfg.fdd, np.float64)
+    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
+    scen = scenarios.to_scenario(cols, np.float64)
+    kinds, keys = batch.kinds_in(scen.manoeuvre.kind), simulate.run_keys(0, range(n))
+    truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
+    raw = campaign.run_batch(model, fdd, cfg.evaluation.settings(model.actuator.r_arm_m), scen, truth, keys,
+                             1200, 0.01, 4, kinds)
+    plant, fdd_out = simulate.fdd_batch(model, fdd, scen, keys, 1200, 0.01, 4, kinds)
+    v, h = np.asarray(plant.vcas_m_s), np.asarray(plant.altitude_m)
+    np.testing.assert_array_equal(np.asarray(raw["vcas_min_m_s"]), v.min(axis=1))
+    np.testing.assert_array_equal(np.asarray(raw["vcas_max_m_s"]), v.max(axis=1))
+    np.testing.assert_array_equal(np.asarray(raw["altitude_min_m"]), h.min(axis=1))
+    np.testing.assert_array_equal(np.asarray(raw["altitude_max_m"]), h.max(axis=1))
+    assert (v.max(axis=1) - v.min(axis=1)).min() > 0.5 and (h.max(axis=1) - h.min(axis=1)).min() > 0.5
+    # the FDD's hinge-load estimate follows the measured flight point, not the initial one
+    from mcfdd.fdd import system
+
+    i = int(np.argmax(h.max(axis=1) - h.min(axis=1)))
+    moving = frozen = system.init(fdd, 0.0, 0.0)
+    for k in range(1200):
+        moving, step_out = system.step(fdd, moving, plant.u_c_m[i, k], plant.u_m[i, k], plant.vcas_m_s[i, k],
+                                       plant.altitude_m[i, k], k * 0.01, 0.01)
+        frozen, frozen_out = system.step(fdd, frozen, plant.u_c_m[i, k], plant.u_m[i, k], plant.vcas_m_s[i, 0],
+                                         plant.altitude_m[i, 0], k * 0.01, 0.01)
+    np.testing.assert_allclose(np.asarray(step_out.load_fraction), np.asarray(fdd_out.load_fraction[i, -1]),
+                               rtol=1e-12)
+    assert abs(float(frozen_out.load_fraction) - float(step_out.load_fraction)) > 1e-6
+
+
+@pytest.mark.parametrize("data,message", [
+    ({"plant": {"aircraft": {"model": "boeing"}}}, "plant.aircraft.model"),
+    ({"space": {"manoeuvre_kind": ["doublet", "pitch_doublet"]}}, "space.manoeuvre_kind.*rcam"),
+    ({"plant": {"aircraft": {"model": "rcam"}}, "space": {"mass_scale": [0.5, 1.0]}}, "space.mass_scale"),
+])
+def test_bad_full_aircraft_settings_are_named(data, message):
+    from mcfdd import config
+
+    with pytest.raises(config.ConfigError, match=message):
+        config.parse(config.CampaignConfig, data)
