@@ -1,14 +1,17 @@
 """Throughput of the batched closed-loop plant (``mcfdd.analysis.simulate.plant_batch``) in float32.
 
 Batches of 1,000 and 10,000 scenarios of 60 s at 100 Hz, a mix of manoeuvre families, flight
-points, turbulence levels and faults. For each batch size: compile time (first call minus the
+points, turbulence levels and faults, flown by each aircraft model in the same run (the roll
+axis and the full RCAM aircraft, ``plant.aircraft.model``). For each model and batch size:
+compile time (first call minus the
 second), run time of the second call (``block_until_ready``), scenario-steps per second, the
 CPU time the run used per second of wall time (2 = both cores busy) and the peak resident memory
 of the process so far. ``plant_batch`` returns full time histories (about 220 kB per scenario at
-6,000 steps), so 10,000 scenarios need over 2 GB; ``plant_batch`` is a plain ``jit(vmap)``, not
-split over devices with ``shard_map`` as ``campaign.run_batch`` is.
+6,000 steps; the full aircraft's 19 signals about 460 kB), so 10,000 scenarios need over 2 GB;
+``plant_batch`` is a plain ``jit(vmap)``, not split over devices with ``shard_map`` as
+``campaign.run_batch`` is.
 
-    python benchmarks/plant_throughput.py [--sizes 1000 10000] [--duration-s 60]
+    python benchmarks/plant_throughput.py [--sizes 1000 10000] [--duration-s 60] [--models roll_axis rcam]
 """
 
 from __future__ import annotations
@@ -55,13 +58,15 @@ def scenarios(n: int, duration_s: float, seed: int = 0) -> closed_loop.Scenario:
     manoeuvre = manoeuvres.ManoeuvreParams(
         kind=kind, amplitude=uniform(-1.0, 1.0), t_start_s=uniform(2.0, 10.0), duration_s=uniform(1.0, 4.0),
         hold_s=uniform(1.0, 4.0), ramp_s=uniform(0.1, 0.5), freq_lo_hz=uniform(0.05, 0.2),
-        freq_hi_hz=uniform(1.0, 3.0), sideslip_rad=np.radians(uniform(-10.0, 10.0)),
+        freq_hi_hz=uniform(1.0, 3.0), sideslip_rad=np.radians(uniform(-10.0, 10.0)), fpa_rad=np.zeros(n, np.float32),
+        heading_change_rad=np.zeros(n, np.float32), bank_rad=np.zeros(n, np.float32),
+        delta_vcas_m_s=np.zeros(n, np.float32),
     )
     ones = np.ones(n, np.float32)
     return closed_loop.Scenario(
-        vcas_m_s=uniform(150.0, 300.0) * np.float32(atmosphere.KT_TO_M_S), altitude_m=uniform(0.0, 9000.0),
+        vcas_m_s=uniform(150.0, 250.0) * np.float32(atmosphere.KT_TO_M_S), altitude_m=uniform(0.0, 9000.0),
         supply_pressure_scale=uniform(0.9, 1.1), kci_scale=uniform(0.9, 1.1), kd_scale=uniform(0.8, 1.2),
-        hinge_scale=uniform(0.8, 1.2), roll_inertia_scale=uniform(0.9, 1.1), noise_std_m=5e-5 * ones,
+        hinge_scale=uniform(0.8, 1.2), roll_inertia_scale=uniform(0.9, 1.1), mass_scale=ones, noise_std_m=5e-5 * ones,
         turbulence_level=rng.choice([0.0, 1.0, 2.0], n).astype(np.float32), fault=fault, manoeuvre=manoeuvre,
     )
 
@@ -93,20 +98,23 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000], help="batch sizes")
     parser.add_argument("--duration-s", type=float, default=60.0, help="simulated time per scenario")
+    parser.add_argument("--models", nargs="+", default=["roll_axis", "rcam"], choices=["roll_axis", "rcam"],
+                        help="aircraft models (plant.aircraft.model)")
     args = parser.parse_args(argv)
     assert not jax.config.jax_enable_x64, "the benchmark measures float32"
-    model = closed_loop.build_model()
     print(f"jax {jax.__version__}, {jax.device_count()} {jax.devices()[0].platform} device(s), {os.cpu_count()} CPU "
           f"cores, {platform.processor() or platform.machine()}, float32, dt {DT_S} s, {SUBSTEPS} actuator sub-steps, "
           f"families {', '.join(FAMILIES)}")
     print(f"load average before start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print()
-    print("| scenarios | steps | compile (s) | run (s) | scenario-steps/s | CPU/wall | peak RSS (MB) |")
-    print("|---:|---:|---:|---:|---:|---:|---:|")
-    for n in args.sizes:
-        r = measure(model, n, args.duration_s)
-        print(f"| {r['scenarios']:,} | {r['steps']:,} | {r['compile_s']:.1f} | {r['run_s']:.2f} | "
-              f"{r['throughput']:.3g} | {r['cpu_per_wall']:.2f} | {r['peak_rss_mb']:.0f} |", flush=True)
+    print("| aircraft | scenarios | steps | compile (s) | run (s) | scenario-steps/s | CPU/wall | peak RSS (MB) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for name in args.models:
+        model = closed_loop.build_model(aircraft_model=name)
+        for n in args.sizes:
+            r = measure(model, n, args.duration_s)
+            print(f"| {name} | {r['scenarios']:,} | {r['steps']:,} | {r['compile_s']:.1f} | {r['run_s']:.2f} | "
+                  f"{r['throughput']:.3g} | {r['cpu_per_wall']:.2f} | {r['peak_rss_mb']:.0f} |", flush=True)
 
 
 if __name__ == "__main__":

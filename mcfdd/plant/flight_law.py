@@ -34,7 +34,7 @@ from mcfdd.plant.atmosphere import G0_M_S2
 
 
 class FlightLawParams(NamedTuple):
-    max_load_factor_step: float = 1.0  # g demanded beyond 1 g by full longitudinal stick
+    max_load_factor_step: float = 0.3  # g demanded beyond 1 g by full longitudinal stick (no alpha protection)
     path_gain_1_s: float = 0.6
     pitch_time_constant_s: float = 0.5
     pitch_integral_1_s: float = 1.0
