@@ -117,6 +117,8 @@ def cmd_simulate(args) -> int:
     dt = cfg.simulation.dt_s
     for name, group in df.groupby("run", sort=False):
         _say(f"wrote {_save_figure(plots.run_timeseries(group, name), out / f'{_slug(name)}.png')}")
+        if "alpha_deg" in group:
+            _say(f"wrote {_save_figure(plots.flight_state(group, name), out / f'{_slug(name)}-flight.png')}")
         detected = group["detected_model"].to_numpy()
         first = {names[m]: float(group["t_s"].to_numpy()[detected == m][0]) for m in np.unique(detected) if m >= 0}
         print(f"{name}: max |delta| {group['delta_deg'].abs().max():.2f} deg, stall {group['stall'].sum() * dt:.2f} s, "

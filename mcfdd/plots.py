@@ -39,6 +39,33 @@ def run_timeseries(df: pd.DataFrame, title: str) -> Figure:
     return fig
 
 
+def flight_state(df: pd.DataFrame, title: str) -> Figure:
+    """Flight of a full-aircraft run: speed and altitude, attitude, aerodynamic angles, load factor."""
+    t = df["t_s"].to_numpy()
+    fig = Figure(figsize=(9, 8), constrained_layout=True)
+    ax1, ax2, ax3, ax4 = fig.subplots(4, 1, sharex=True)
+    ax1.plot(t, df["vcas_kt"], color="C0")
+    ax1.set_ylabel("Vcas (kt)", color="C0")
+    alt = ax1.twinx()
+    alt.plot(t, df["altitude_m"], color="C1")
+    alt.set_ylabel("altitude (m)", color="C1")
+    ax1.set_title(title)
+    for name, label in (("phi_deg", "bank phi"), ("theta_deg", "pitch theta"), ("psi_deg", "heading psi")):
+        ax2.plot(t, df[name], label=label)
+    ax2.set_ylabel("attitude (deg)")
+    for name, label in (("alpha_deg", "alpha"), ("beta_deg", "beta")):
+        ax3.plot(t, df[name], label=label)
+    ax3.set_ylabel("angle (deg)")
+    ax4.plot(t, df["nz_g"], color="C3")
+    ax4.set_ylabel("load factor nz (g)")
+    ax4.set_xlabel("time (s)")
+    for ax in (ax2, ax3):
+        ax.legend(loc="upper right")
+    for ax in (ax1, ax2, ax3, ax4):
+        ax.grid(alpha=0.3)
+    return fig
+
+
 def rates_by_stratum(summ: pd.DataFrame, group: str) -> Figure:
     """FAR and MDR with their exact 95 % intervals for each stratum of one grouping."""
     sub = summ[summ["group"] == group]

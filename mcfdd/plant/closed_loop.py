@@ -29,6 +29,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, rcam_loop, turbulence
+from mcfdd.plant.signals import PlantOutputs
 
 DT_S = 0.01
 NOISE_DIM = 4  # normals per step: three for turbulence, one for the position sensor
@@ -83,23 +84,6 @@ class PlantState(NamedTuple):
     roll: aircraft.RollState
     integrator: jnp.ndarray
     gust: jnp.ndarray
-
-
-class PlantOutputs(NamedTuple):
-    """Signals at the start of a step (time t). Rod positions in m, angles in rad."""
-
-    u_c_m: jnp.ndarray
-    u_m: jnp.ndarray
-    x_m: jnp.ndarray
-    dp_avail_norm: jnp.ndarray
-    stall: jnp.ndarray
-    p_rad_s: jnp.ndarray
-    phi_rad: jnp.ndarray
-    stick: jnp.ndarray
-    nu1: jnp.ndarray
-    nu2: jnp.ndarray
-    vcas_m_s: jnp.ndarray
-    altitude_m: jnp.ndarray
 
 
 def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircraft.AircraftParams(),

@@ -6,7 +6,9 @@ powers (computed by the caller from the measured flight point every sample):
 - roll: the roll-rate law of :mod:`mcfdd.plant.control_law` (stick demands roll rate, neutral
   stick holds bank up to 33 deg, bank protection at 67 deg). In the bank-target mode
   (coordinated turn) and the heading-target mode (bank demand ``atan(V k_psi (psi_t - psi) / g)``
-  limited to ``nav_bank``) the demanded roll rate is ``k_phi (phi_t - phi)``, still protected.
+  limited to ``nav_bank``) the demanded roll rate is ``k_phi (phi_t - phi)``. The demanded roll
+  rate changes by at most ``max_roll_accel`` per second (a mode engaging with a large bank error
+  would otherwise step the aileron command to its stop), then the bank protection limits it.
 - pitch: the longitudinal stick demands a load-factor increment ``dnz = stick max_dnz``, i.e. a
   pitch rate ``g dnz / V``; with the stick neutral the law holds the flight-path angle it had at
   release (plus the FPA target of the fpa_change manoeuvre) through ``q_c = k_gamma (gamma_t -
@@ -29,7 +31,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.plant import control_law
+from mcfdd.plant import control_law, rcam
 from mcfdd.plant.atmosphere import G0_M_S2
 
 
@@ -46,6 +48,7 @@ class FlightLawParams(NamedTuple):
     rudder_max_rad: float = math.radians(30.0)
     pedal_sideslip_rad: float = math.radians(10.0)  # sideslip demanded by full pedal
     bank_gain_1_s: float = 0.5
+    max_roll_accel_rad_s2: float = math.radians(20.0)  # the demanded roll rate changes no faster
     heading_gain_1_s: float = 0.1
     nav_bank_rad: float = math.radians(25.0)
     speed_gain_1_s: float = 0.15
@@ -67,14 +70,9 @@ class ControlPowers(NamedTuple):
 
 
 class Measurements(NamedTuple):
-    """What the law reads (rad, rad/s, m/s): body rates, attitude, air data and flight path."""
+    """What the law reads: the body state (rates and attitude), air data and flight path (rad, m/s)."""
 
-    p: jnp.ndarray
-    q: jnp.ndarray
-    r: jnp.ndarray
-    phi: jnp.ndarray
-    theta: jnp.ndarray
-    psi: jnp.ndarray
+    body: rcam.RcamState
     beta: jnp.ndarray
     gamma: jnp.ndarray
     tas: jnp.ndarray
@@ -90,6 +88,7 @@ class Trim(NamedTuple):
 
 
 class LawState(NamedTuple):
+    roll_demand: jnp.ndarray  # demanded roll rate (rad/s), rate-limited
     roll: jnp.ndarray
     pitch: jnp.ndarray
     sideslip: jnp.ndarray
@@ -106,7 +105,7 @@ class Commands(NamedTuple):
 
 def init(zero) -> LawState:
     """Integrators empty, level flight path held."""
-    return LawState(zero, zero, zero, zero, zero)
+    return LawState(zero, zero, zero, zero, zero, zero)
 
 
 def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s):
@@ -123,32 +122,35 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
 
     Returns (new state, :class:`Commands` in rad).
     """
-    g_v = G0_M_S2 / meas.tas
-    heading_error = jnp.arctan2(jnp.sin(pilot.heading_change_rad - meas.psi), jnp.cos(pilot.heading_change_rad - meas.psi))
+    body, g_v = meas.body, G0_M_S2 / meas.tas
+    heading_error = jnp.arctan2(jnp.sin(pilot.heading_change_rad - body.psi),
+                                jnp.cos(pilot.heading_change_rad - body.psi))
     nav_bank = jnp.clip(jnp.arctan(params.heading_gain_1_s * heading_error / g_v), -params.nav_bank_rad,
                         params.nav_bank_rad)
     bank_target = jnp.where(pilot.heading_mode, nav_bank, pilot.bank_rad)
-    target_rate = control_law.protect(
-        roll, jnp.clip(params.bank_gain_1_s * (bank_target - meas.phi), -roll.max_roll_rate_rad_s,
-                       roll.max_roll_rate_rad_s), meas.phi)
-    p_cmd = jnp.where(pilot.heading_mode | pilot.bank_mode, target_rate,
-                      control_law.roll_rate_demand(roll, pilot.stick, meas.phi))
+    target_rate = jnp.clip(params.bank_gain_1_s * (bank_target - body.phi), -roll.max_roll_rate_rad_s,
+                           roll.max_roll_rate_rad_s)
+    demand = jnp.where(pilot.heading_mode | pilot.bank_mode, target_rate,
+                       control_law.roll_rate_demand(roll, pilot.stick, body.phi))
+    max_change = params.max_roll_accel_rad_s2 * dt_s
+    demand = state.roll_demand + jnp.clip(demand - state.roll_demand, -max_change, max_change)
+    p_cmd = control_law.protect(roll, demand, body.phi)
     gains = control_law.schedule(roll, powers.roll_damping, powers.aileron)
-    roll_int, aileron = control_law.step(roll, gains, state.roll, p_cmd, meas.p, max_aileron_rad, dt_s)
+    roll_int, aileron = control_law.step(roll, gains, state.roll, p_cmd, body.p, max_aileron_rad, dt_s)
 
     flying = jnp.abs(pilot.pitch_stick) >= params.stick_deadband
     path = jnp.where(flying, meas.gamma, state.path_rad)
-    bank = jnp.clip(meas.phi, -roll.bank_hold_rad, roll.bank_hold_rad)
+    bank = jnp.clip(body.phi, -roll.bank_hold_rad, roll.bank_hold_rad)
     q_cmd = g_v * jnp.sin(bank) * jnp.tan(bank) + jnp.where(
         flying, g_v * params.max_load_factor_step * jnp.clip(pilot.pitch_stick, -1.0, 1.0),
         params.path_gain_1_s * (path + pilot.fpa_rad - meas.gamma))
-    pitch_int, stabiliser = _pi(state.pitch, q_cmd - meas.q, trim.stabiliser,
+    pitch_int, stabiliser = _pi(state.pitch, q_cmd - body.q, trim.stabiliser,
                                 -1.0 / (params.pitch_time_constant_s * jnp.abs(powers.stabiliser)),
                                 params.pitch_integral_1_s, params.stabiliser_min_rad, params.stabiliser_max_rad, dt_s)
 
     beta_cmd = pilot.sideslip_rad + params.pedal_sideslip_rad * jnp.clip(pilot.pedal, -1.0, 1.0)
     rudder_per_accel = 1.0 / jnp.abs(powers.rudder)
-    damper = rudder_per_accel * params.yaw_damping_1_s * (meas.r - g_v * jnp.sin(meas.phi) * jnp.cos(meas.theta))
+    damper = rudder_per_accel * params.yaw_damping_1_s * (body.r - g_v * jnp.sin(body.phi) * jnp.cos(body.theta))
     slip_int, rudder = _pi(state.sideslip, beta_cmd - meas.beta, damper, rudder_per_accel * params.sideslip_gain_1_s2,
                            params.sideslip_integral_1_s3 / params.sideslip_gain_1_s2, -params.rudder_max_rad,
                            params.rudder_max_rad, dt_s)
@@ -156,4 +158,5 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
     speed_int, throttle = _pi(state.speed, trim.vcas + pilot.delta_vcas_m_s - meas.vcas, trim.throttle,
                               params.speed_gain_1_s / powers.throttle, params.speed_integral_1_s2 / params.speed_gain_1_s,
                               params.throttle_min_rad, params.throttle_max_rad, dt_s)
-    return LawState(roll_int, pitch_int, slip_int, speed_int, path), Commands(aileron, stabiliser, rudder, throttle)
+    return (LawState(demand, roll_int, pitch_int, slip_int, speed_int, path),
+            Commands(aileron, stabiliser, rudder, throttle))

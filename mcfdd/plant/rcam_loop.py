@@ -27,6 +27,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, flight_law, hinge, manoeuvres, rcam, turbulence
+from mcfdd.plant.signals import PlantOutputs
 
 
 class Lags(NamedTuple):
@@ -82,30 +83,6 @@ class RcamPlantState(NamedTuple):
     gust: jnp.ndarray
 
 
-class RcamOutputs(NamedTuple):
-    """Signals at the start of a step (time t): those of the roll axis and the full aircraft's."""
-
-    u_c_m: jnp.ndarray
-    u_m: jnp.ndarray
-    x_m: jnp.ndarray
-    dp_avail_norm: jnp.ndarray
-    stall: jnp.ndarray
-    p_rad_s: jnp.ndarray
-    phi_rad: jnp.ndarray
-    stick: jnp.ndarray
-    nu1: jnp.ndarray
-    nu2: jnp.ndarray
-    vcas_m_s: jnp.ndarray
-    altitude_m: jnp.ndarray
-    alpha_rad: jnp.ndarray
-    beta_rad: jnp.ndarray
-    theta_rad: jnp.ndarray
-    q_rad_s: jnp.ndarray
-    r_rad_s: jnp.ndarray
-    psi_rad: jnp.ndarray
-    nz_g: jnp.ndarray
-
-
 def build_model(actuator_params: actuator.ActuatorParams, aircraft_params: aircraft.AircraftParams,
                 roll_params: control_law.RollLawParams, surface: hinge.HingeSurface, table: hinge.HingeTable,
                 rcam_params: rcam.RcamParams = rcam.RcamParams(), law_params=flight_law.FlightLawParams(),
@@ -158,7 +135,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
          kinds: tuple[int, ...]):
     """One sample of the full aircraft in closed loop. ``noise`` holds 4 standard normals.
 
-    Returns (new state, :class:`RcamOutputs` at time ``t_s``).
+    Returns (new state, :class:`~mcfdd.plant.signals.PlantOutputs` at time ``t_s``).
     """
     act = params.actuator
     pilot = manoeuvres.inputs(params.manoeuvre, t_s, kinds)
@@ -171,7 +148,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     sphi, cphi, sth, cth = jnp.sin(b.phi), jnp.cos(b.phi), jnp.sin(b.theta), jnp.cos(b.theta)
     climb = b.u * sth - (b.v * sphi + b.w * cphi) * cth
     gamma = jnp.arcsin(jnp.clip(climb / jnp.sqrt(b.u**2 + b.v**2 + b.w**2), -1.0, 1.0))
-    meas = flight_law.Measurements(b.p, b.q, b.r, b.phi, b.theta, b.psi, air.beta, gamma, air.airspeed, vcas)
+    meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas)
 
     max_delta = act.max_deflection_rad
     law_state, cmd = flight_law.step(params.law, params.roll, params.law_trim, _powers(params, qbar, air.airspeed),
@@ -192,7 +169,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     lags = params.lags
     g = params.rcam.gravity_m_s2
     nz = -(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g
-    outputs = RcamOutputs(
+    outputs = PlantOutputs(
         u_c_m=u_c, u_m=out.x_m + params.noise_std_m * noise[3], x_m=out.x_m, dp_avail_norm=out.dp_avail_norm,
         stall=out.stall, p_rad_s=b.p, phi_rad=b.phi, stick=pilot.stick, nu1=out.nu1, nu2=out.nu2, vcas_m_s=vcas,
         altitude_m=b.altitude, alpha_rad=air.alpha, beta_rad=air.beta, theta_rad=b.theta, q_rad_s=b.q, r_rad_s=b.r,
