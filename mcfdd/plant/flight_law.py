@@ -156,7 +156,8 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
                            params.rudder_max_rad, dt_s)
 
     speed_int, throttle = _pi(state.speed, trim.vcas + pilot.delta_vcas_m_s - meas.vcas, trim.throttle,
-                              params.speed_gain_1_s / powers.throttle, params.speed_integral_1_s2 / params.speed_gain_1_s,
-                              params.throttle_min_rad, params.throttle_max_rad, dt_s)
+                              params.speed_gain_1_s / powers.throttle,
+                              params.speed_integral_1_s2 / params.speed_gain_1_s, params.throttle_min_rad,
+                              params.throttle_max_rad, dt_s)
     return (LawState(demand, roll_int, pitch_int, slip_int, speed_int, path),
             Commands(aileron, stabiliser, rudder, throttle))
