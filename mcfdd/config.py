@@ -900,6 +900,9 @@ class TuneConfig:
         if self.validation.precision != self.training.precision:
             raise ConfigError(f"validation.precision: {self.validation.precision!r} differs from training.precision "
                               f"{self.training.precision!r}")
+        if self.plant.aircraft.model != "roll_axis":
+            raise ConfigError(f"plant.aircraft.model: {self.plant.aircraft.model!r}; mcfdd tune replays stored "
+                              f"histories at each run's initial flight point, so it supports \"roll_axis\" only")
         for split in ("training", "validation"):
             _check_as_campaign(self.campaign(split), split)
 

@@ -329,3 +329,39 @@ def test_bad_full_aircraft_settings_are_named(data, message):
 
     with pytest.raises(config.ConfigError, match=message):
         config.parse(config.CampaignConfig, data)
+
+
+def test_simulate_writes_the_flight_signals_of_rcam_runs(tmp_path):
+    import pandas as pd
+
+    from mcfdd import cli
+
+    path = tmp_path / "rcam.toml"
+    path.write_text('[simulation]\nduration_s = 3.0\nprecision = "float64"\n\n[plant.aircraft]\nmodel = "rcam"\n\n'
+                    '[[runs]]\nname = "speed"\nvcas_kt = 180.0\naltitude_m = 2000.0\n'
+                    'manoeuvre = { kind = "speed_change", delta_vcas_kt = 10.0, t_start_s = 0.5 }\n')
+    assert cli.main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 0
+    df = pd.read_parquet(tmp_path / "out" / "timeseries.parquet")
+    for column in ("vcas_kt", "altitude_m", "alpha_deg", "beta_deg", "theta_deg", "q_deg_s", "r_deg_s", "psi_deg",
+                   "nz_g"):
+        assert np.isfinite(df[column]).all(), column
+    assert df["vcas_kt"].iloc[0] == pytest.approx(180.0, abs=1e-6) and df["vcas_kt"].iloc[-1] > 180.0
+    assert (tmp_path / "out" / "speed-flight.png").is_file()
+
+
+def test_roll_axis_refuses_a_full_aircraft_manoeuvre_in_one_line(tmp_path, capsys):
+    from mcfdd import cli
+
+    path = tmp_path / "roll.toml"
+    path.write_text('[[runs]]\nname = "turn"\nmanoeuvre = { kind = "coordinated_turn", bank_deg = 30.0 }\n')
+    assert cli.main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "runs[0].manoeuvre.kind" in err and "rcam" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_tuning_refuses_the_full_aircraft():
+    from mcfdd import config
+
+    with pytest.raises(config.ConfigError, match="plant.aircraft.model.*roll_axis"):
+        config.parse(config.TuneConfig, {"plant": {"aircraft": {"model": "rcam"}}, "validation": {"seed": 1}})
