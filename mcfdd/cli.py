@@ -55,7 +55,7 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
 
     from mcfdd.analysis import batch, simulate
     from mcfdd.analysis.scenarios import to_scenario
-    from mcfdd.plant import atmosphere, closed_loop
+    from mcfdd.plant import atmosphere, closed_loop, signals
 
     dtype = _dtype(sim.precision)
     model = plant_cfg.model()
@@ -79,12 +79,12 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         "u_c_m": plant.u_c_m, "u_m": plant.u_m, "x_m": plant.x_m, "u_c_deg": deg(plant.u_c_m), "u_deg": deg(plant.u_m),
         "delta_deg": deg(plant.x_m), "dp_avail_norm": plant.dp_avail_norm, "stall": plant.stall,
         "p_deg_s": plant.p_rad_s * to_deg, "phi_deg": plant.phi_rad * to_deg, "stick": plant.stick,
-        "nu1": plant.nu1, "nu2": plant.nu2, "vcas_kt": plant.vcas_m_s / atmosphere.KT_TO_M_S, "altitude_m": plant.altitude_m,
+        "nu1": plant.nu1, "nu2": plant.nu2, "vcas_kt": plant.vcas_m_s / atmosphere.KT_TO_M_S,
+        "altitude_m": plant.altitude_m,
     }
-    if plant_cfg.aircraft.model == "rcam":
-        columns.update({name.replace("_rad", "_deg"): getattr(plant, name) * to_deg for name in
-                        ("alpha_rad", "beta_rad", "theta_rad", "q_rad_s", "r_rad_s", "psi_rad")})
-        columns["nz_g"] = plant.nz_g
+    for name in (n for n in signals.FULL_AIRCRAFT_SIGNALS if n in plant._fields):
+        value = getattr(plant, name)
+        columns[name.replace("_rad", "_deg")] = value if name == "nz_g" else value * to_deg
     for i in range(len(names)):
         columns[f"r_{i}"] = fdd.r[..., i]
         columns[f"theta_{i}"] = fdd.theta[..., i]

@@ -338,7 +338,7 @@ def test_simulate_writes_the_flight_signals_of_rcam_runs(tmp_path):
 
     path = tmp_path / "rcam.toml"
     path.write_text('[simulation]\nduration_s = 3.0\nprecision = "float64"\n\n[plant.aircraft]\nmodel = "rcam"\n\n'
-                    '[[runs]]\nname = "speed"\nvcas_kt = 180.0\naltitude_m = 2000.0\n'
+                    '[[runs]]\nname = "speed"\nvcas_kt = 180.0\naltitude_m = 2000.0\nturbulence = "none"\n'
                     'manoeuvre = { kind = "speed_change", delta_vcas_kt = 10.0, t_start_s = 0.5 }\n')
     assert cli.main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 0
     df = pd.read_parquet(tmp_path / "out" / "timeseries.parquet")

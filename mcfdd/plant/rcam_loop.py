@@ -27,7 +27,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, flight_law, hinge, manoeuvres, rcam, turbulence
-from mcfdd.plant.signals import PlantOutputs
+from mcfdd.plant.signals import RcamOutputs
 
 
 class Lags(NamedTuple):
@@ -135,7 +135,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
          kinds: tuple[int, ...]):
     """One sample of the full aircraft in closed loop. ``noise`` holds 4 standard normals.
 
-    Returns (new state, :class:`~mcfdd.plant.signals.PlantOutputs` at time ``t_s``).
+    Returns (new state, :class:`~mcfdd.plant.signals.RcamOutputs` at time ``t_s``).
     """
     act = params.actuator
     pilot = manoeuvres.inputs(params.manoeuvre, t_s, kinds)
@@ -169,7 +169,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     lags = params.lags
     g = params.rcam.gravity_m_s2
     nz = -(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g
-    outputs = PlantOutputs(
+    outputs = RcamOutputs(
         u_c_m=u_c, u_m=out.x_m + params.noise_std_m * noise[3], x_m=out.x_m, dp_avail_norm=out.dp_avail_norm,
         stall=out.stall, p_rad_s=b.p, phi_rad=b.phi, stick=pilot.stick, nu1=out.nu1, nu2=out.nu2, vcas_m_s=vcas,
         altitude_m=b.altitude, alpha_rad=air.alpha, beta_rad=air.beta, theta_rad=b.theta, q_rad_s=b.q, r_rad_s=b.r,

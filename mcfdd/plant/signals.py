@@ -11,8 +11,7 @@ class PlantOutputs(NamedTuple):
     """Signals at the start of a step (time t). Rod positions in m, angles in rad.
 
     The measured Vcas (m/s) and altitude (m) are the flight point the FDD schedules on (constant
-    on the roll axis). The full aircraft also fills alpha, beta, theta, q, r, psi and the body
-    normal load factor nz (g); on the roll axis they are None (empty pytree nodes).
+    on the roll axis).
     """
 
     u_c_m: jnp.ndarray
@@ -27,10 +26,9 @@ class PlantOutputs(NamedTuple):
     nu2: jnp.ndarray
     vcas_m_s: jnp.ndarray
     altitude_m: jnp.ndarray
-    alpha_rad: jnp.ndarray | None = None
-    beta_rad: jnp.ndarray | None = None
-    theta_rad: jnp.ndarray | None = None
-    q_rad_s: jnp.ndarray | None = None
-    r_rad_s: jnp.ndarray | None = None
-    psi_rad: jnp.ndarray | None = None
-    nz_g: jnp.ndarray | None = None
+
+
+FULL_AIRCRAFT_SIGNALS = ("alpha_rad", "beta_rad", "theta_rad", "q_rad_s", "r_rad_s", "psi_rad", "nz_g")
+RcamOutputs = NamedTuple("RcamOutputs", [(name, jnp.ndarray) for name in PlantOutputs._fields + FULL_AIRCRAFT_SIGNALS])
+RcamOutputs.__doc__ = """The signals of :class:`PlantOutputs` and the full aircraft's: alpha, beta, theta (rad), q, r
+(rad/s), psi (rad) and the body normal load factor nz (g)."""
