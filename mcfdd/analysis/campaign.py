@@ -264,11 +264,12 @@ def on_devices(fn, *args, batched: tuple[bool, ...]) -> dict:
     that does not divide among the devices runs on the first one. Returns ``fn``'s outputs as
     NumPy arrays, the shares concatenated in order.
 
-    Every device thus runs the same program as a single device would. Splitting inside one jit
-    with ``shard_map`` does not: XLA compiles a program with several partitions through its SPMD
-    partitioner, after which its algebraic simplifier folds and reassociates floating-point
-    constants differently (the Dryden pole ``exp(-pi V dt / (4 b))`` is rounded differently, for
-    one), so results would depend on the device count by a few ulp.
+    Every device thus runs the same program as a single device would, whatever the number of
+    devices. Splitting inside one jit with ``shard_map`` does not: XLA compiles a program with
+    several partitions through its SPMD partitioner, and the optimised per-device program then
+    differs from the single-device one in how floating-point constants are folded and
+    reassociated (the Dryden pole ``exp(-pi V dt / (4 b))`` is evaluated in another order, for
+    one), so results depended on the device count in their last bits.
     """
     devices = jax.devices()
     n = next(jax.tree.leaves(a)[0].shape[0] for a, b in zip(args, batched) if b)
