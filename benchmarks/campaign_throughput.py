@@ -165,7 +165,11 @@ def measure_pipeline(n_scenarios: int, duration_s: float, chunk_size: int, repea
 
 
 def split(fn, specs):
-    """``jit`` of ``fn`` (vmapped over scenarios) split over all devices with ``shard_map``, as run_batch does."""
+    """``jit`` of ``fn`` (vmapped over scenarios) split over all devices with ``shard_map`` (the peer's way).
+
+    ``run_batch`` instead runs the single-device program on each device's share
+    (``campaign.on_devices``), which keeps results independent of the device count.
+    """
     mesh = jax.make_mesh((jax.device_count(),), ("batch",), axis_types=(AxisType.Auto,))
     return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=P("batch"), check_vma=False))
 
@@ -174,7 +178,7 @@ def peer_functions(p: Problem, n_steps: int):
     """Jitted pieces of the Python-loop peer: init, one batched step, a noise block, finalize.
 
     The step is ``campaign.step_one``, the body of ``campaign.run_one``, vmapped over scenarios
-    and, with several devices, split over them with ``shard_map`` as ``run_batch`` does.
+    and, with several devices, split over them with ``shard_map`` inside the step's jit.
     """
     s = p.setup
     model, fdd_params, settings, kinds = s.model, s.fdd_params, s.settings, s.kinds
@@ -297,8 +301,8 @@ def measure_breakdown(n_scenarios: int, duration_s: float, repeats: int) -> dict
         zero = jnp.zeros((), params.qbar_pa.dtype)
         return simulate.scan_steps(body, (plant_state, fdd_state, zero), key, c.n_steps, closed_loop.NOISE_DIM)[0][2]
 
-    b = P("batch")
-    runs = [partial(split(jax.vmap(partial(cut, stage)), (b, b)), scen, keys) for stage in range(3)]
+    runs = [partial(campaign.on_devices, jax.jit(jax.vmap(partial(cut, stage))), scen, keys, batched=(True, True))
+            for stage in range(3)]
     runs.append(partial(campaign.run_batch, s.model, s.fdd_params, s.settings, scen, truth, keys, c.n_steps, c.dt_s,
                         c.substeps, s.kinds))
     rows = []

@@ -8,8 +8,7 @@ second), run time of the second call (``block_until_ready``), scenario-steps per
 CPU time the run used per second of wall time (2 = both cores busy) and the peak resident memory
 of the process so far. ``plant_batch`` returns full time histories (about 220 kB per scenario at
 6,000 steps; the full aircraft's 19 signals about 460 kB), so 10,000 scenarios need over 2 GB;
-``plant_batch`` is a plain ``jit(vmap)``, not split over devices with ``shard_map`` as
-``campaign.run_batch`` is.
+``plant_batch`` is a plain ``jit(vmap)``, not split over devices as ``campaign.run_batch`` is.
 
     python benchmarks/plant_throughput.py [--sizes 1000 10000] [--duration-s 60] [--models roll_axis rcam]
 """

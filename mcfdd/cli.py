@@ -665,7 +665,7 @@ def cmd_tune(args) -> int:
     for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
         _say(f"held-out campaign, FDD {label} tuning")
         frames[label], _, _ = run_campaign(cfg.campaign("validation", fdd_cfg), out / "validation" / label)
-        compiles.append(campaign.run_batch._cache_size())
+        compiles.append(campaign.device_batch._cache_size())
         stall_taus[label] = fdd_cfg.stall.tau_deg
     t_val = time.perf_counter() - start
     validation = report.validation_table(frames, deg_per_m, stall_taus, cfg.evaluation.stall_window_s,

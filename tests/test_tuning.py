@@ -304,9 +304,9 @@ def test_new_fdd_numbers_do_not_recompile(tune_data, corner):
             DT_S, 4, (5, 6))
     model = cfg.plant.model()
     campaign.run_batch(model, params, *args)
-    size = campaign.run_batch._cache_size()
+    size = campaign.device_batch._cache_size()
     campaign.run_batch(model, new_params, *args)
-    assert campaign.run_batch._cache_size() == size
+    assert campaign.device_batch._cache_size() == size
 
     box = corner.space.box(np.float64)
     u = np.array([[0.5, 0.5], [0.2, 0.1]])

@@ -31,8 +31,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.sharding import AxisType
-from jax.sharding import PartitionSpec as P
+import numpy as np
 
 from mcfdd.analysis.simulate import scan_steps
 from mcfdd.fdd import decision, system
@@ -260,23 +259,53 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
 
 
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
+def device_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
+                 kinds: tuple[int, ...]) -> dict:
+    """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit, on one device."""
+    def one(scenario, truth, key):
+        return run_one(model, fdd_params, settings, scenario, truth, key, n_steps, dt_s, substeps, kinds)
+
+    return jax.vmap(one)(scenarios, truths, keys)
+
+
+def on_devices(fn, *args, batched: tuple[bool, ...]) -> dict:
+    """``fn(*args)`` with the arguments marked in ``batched`` split evenly over the devices.
+
+    Each device gets an equal share of the leading axis and runs ``fn`` (a single-device jitted
+    function) on it; the other arguments are copied to every device. Dispatch is asynchronous, so
+    the devices run at the same time; ``fn`` compiles once for each device it runs on. A batch
+    that does not divide among the devices runs on the first one. Returns ``fn``'s outputs as
+    NumPy arrays, the shares concatenated in order.
+
+    Every device thus runs the same program as a single device would, whatever the number of
+    devices. Splitting inside one jit with ``shard_map`` does not: XLA compiles a program with
+    several partitions through its SPMD partitioner, and the optimised per-device program then
+    differs from the single-device one in how floating-point constants are folded and
+    reassociated (the Dryden pole ``exp(-pi V dt / (4 b))`` is evaluated in another order, for
+    one), so results depended on the device count in their last bits.
+    """
+    devices = jax.devices()
+    n = next(jax.tree.leaves(a)[0].shape[0] for a, b in zip(args, batched) if b)
+    if n % len(devices):
+        devices = devices[:1]
+    size = n // len(devices)
+
+    outs = []
+    for i, device in enumerate(devices):
+        share = [jax.tree.map(lambda x: x[i * size:(i + 1) * size], a) if b else a for a, b in zip(args, batched)]
+        outs.append(fn(*jax.device_put(share, device)))
+    return jax.tree.map(lambda *parts: np.concatenate([np.asarray(p) for p in parts]), *outs)
+
+
 def run_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
               kinds: tuple[int, ...]) -> dict:
-    """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit.
+    """:func:`device_batch` with the batch split over the devices by :func:`on_devices`.
 
-    With several devices (on a CPU: ``--xla_force_host_platform_device_count``) and a batch
-    that divides among them, the batch is split over the devices with ``shard_map``; each
-    scenario's numbers are the same either way.
+    With several devices (on a CPU: ``--xla_force_host_platform_device_count``) each runs the
+    single-device program on its share, so a scenario's numbers are the same to the last bit
+    whatever the number of devices, provided every share is a whole number of lane blocks
+    (``mcfdd campaign`` pads each chunk to ``cli.LANE_BLOCK`` scenarios per device). Returns
+    NumPy arrays, batch axis first.
     """
-    def batched(model, fdd_params, settings, scenarios, truths, keys):
-        def one(scenario, truth, key):
-            return run_one(model, fdd_params, settings, scenario, truth, key, n_steps, dt_s, substeps, kinds)
-
-        return jax.vmap(one)(scenarios, truths, keys)
-
-    n_dev = jax.device_count()
-    if n_dev > 1 and keys.shape[0] % n_dev == 0:
-        mesh = jax.make_mesh((n_dev,), ("batch",), axis_types=(AxisType.Auto,))
-        batched = jax.shard_map(batched, mesh=mesh, in_specs=(P(), P(), P(), P("batch"), P("batch"), P("batch")),
-                                out_specs=P("batch"), check_vma=False)
-    return batched(model, fdd_params, settings, scenarios, truths, keys)
+    return on_devices(partial(device_batch, n_steps=n_steps, dt_s=dt_s, substeps=substeps, kinds=kinds), model,
+                      fdd_params, settings, scenarios, truths, keys, batched=(False, False, False, True, True, True))
