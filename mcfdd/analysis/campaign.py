@@ -217,7 +217,7 @@ def init_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenar
     params = closed_loop.prepare(model, scenario, dt_s)
     plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
     zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = system.init(fdd_params, zero, zero)
+    fdd_state = system.init(fdd_params, zero)
     return params, (plant_state, fdd_state, reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype))
 
 

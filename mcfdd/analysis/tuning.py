@@ -121,7 +121,7 @@ def fdd_run(fdd_params: system.FddParams, settings: campaign.Settings, plant: cl
     """The FDD over one stored history (leaves (T,)). Returns (smooth bounds dict, campaign outcomes)."""
     n_steps = plant.u_m.shape[0]
     zero = jnp.zeros_like(plant.u_m[0])
-    carry = (system.init(fdd_params, zero, zero), campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype),
+    carry = (system.init(fdd_params, zero), campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype),
              worst_case.soft_init(zero.dtype))
 
     @jax.checkpoint

@@ -7,7 +7,11 @@
   bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
   no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction`` and the tracking
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
-  which no first-order model follows). While a stall
+  which no first-order model follows). While evaluation is suspended the bank's filters and the
+  excitation band-pass restart at every sample from equilibrium with the measured position
+  (residual 0, ||u|| input 0), so no filter carries a transient of the gated interval out of it:
+  after the gate reopens, every residual and ||u|| are driven by the same measured tracking
+  error from zero. While a stall
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
@@ -94,15 +98,15 @@ def load_fraction(bank: lpv.GainBank, k):
     return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
-def init(params: FddParams, u0, u_c0) -> FddState:
-    """State for a start at rest at measured position u0 and command u_c0."""
+def init(params: FddParams, u0) -> FddState:
+    """State for a start at rest (in equilibrium) at measured position u0."""
     n = params.loe.bank.k0.shape[0]
     u0 = jnp.asarray(u0)
     bank_xq = jnp.broadcast_to(residual.init(u0), (n,))
     return FddState(
         bank_xq=bank_xq,
         bank_xi=jnp.zeros_like(bank_xq),
-        band=decision.excitation_init(u_c0),
+        band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
         since_stall=jnp.asarray(jnp.inf, u0.dtype),
@@ -120,12 +124,14 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     direction = jnp.sign(u_c - u)
     k = lpv.gains(bank, u, direction, vcas_m_s, altitude_m)
 
-    bank_xq, r = residual.step(state.bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
     load = load_fraction(bank, k)
     valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
-    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, jnp.where(valid, r, 0.0), dt_s)
-    band, bp = decision.excitation_step(state.band, u_c, loe.pole, bank.k0[0], dt_s)
-    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, jnp.where(valid, bp, 0.0), dt_s)
+    bank_xq = jnp.where(valid, state.bank_xq, residual.init(u))
+    bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
+    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
+    band = jnp.where(valid, state.band, decision.excitation_init(u))
+    band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
+    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
     iota = decision.signature(theta, theta_u, loe.tau)
     excited = theta_u >= loe.excitation_floor
     stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
