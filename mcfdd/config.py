@@ -331,8 +331,14 @@ class LoeDetectionConfig:
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=0.0, beta=1.0, gamma_1_s=1.0))
     tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
                       doc="threshold on theta_i / ||u||, about the relative gain mismatch |k_j - k_i| / k0_i")
+    tau_schedule: float = spec(0.0, lo=0.0, hi=1.0, doc="scheduled thresholds tau_i(rho) = max(tau, tau_schedule "
+                               "x distance (16) from model i to its nearest model at the current point, in ratio "
+                               "units); 0 keeps tau constant")
+    detection_tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="detection: the fault-free model is "
+                                "rejected while theta_0 / ||u|| is above this and ||u|| above the excitation floor")
+    detection_confirm_s: float = spec(0.5, lo=0.0, hi=60.0, doc="detection: the rejection must persist this long")
     excitation_floor_deg: float = spec(0.05, lo=0.0, doc="no decision while ||u|| is below this")
-    confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="a decoded model must persist this long to be decided")
+    confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="identification: a decoded model must persist this long")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (1 disables)")
     linear_range_deg: float = spec(3.5, lo=0.0, lo_open=True, doc="residuals are not evaluated while |u_c - u| "
@@ -395,6 +401,8 @@ class FddConfig:
         loe, stl = self.loe, self.stall
         return system.FddParams(
             loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
+                                 tau_schedule=loe.tau_schedule, detection_tau=loe.detection_tau,
+                                 detection_confirm_s=loe.detection_confirm_s,
                                  excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
                                  max_load_fraction=loe.max_load_fraction,
                                  linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),

@@ -118,7 +118,7 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
              .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
-             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.1\nexcitation_floor_deg = 0.01\n")
+             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.1\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n")
     path = tmp_path / "harsh.toml"
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)
@@ -139,6 +139,7 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     plant, out = simulate.fdd_batch(model, fdd, scen, keys, c.n_steps, c.dt_s, c.substeps, kinds)
     t = np.arange(c.n_steps) * c.dt_s
     det = np.asarray(out.detected)
+    fault = np.asarray(out.fault_detected)
     stall = np.asarray(plant.stall)
     for i in range(n):
         after_stall = np.full(c.n_steps, np.inf)
@@ -150,16 +151,24 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
         clear = ~stall[i] & (after_stall > settings.stall_grace_s)
         settled = t >= settings.settle_s
         before = t < onset[i]
-        fa = settled & before & clear & (det[i] >= 1)
-        expect_fa = t[fa][0] if fa.any() else np.inf
-        assert float(raw["false_alarm_time_s"][i]) == expect_fa
-        window = (t >= onset[i]) & (t <= onset[i] + settings.t_detec_s) & (det[i] >= 1)
-        assert float(raw["detection_time_s"][i]) == (t[window][0] if window.any() else np.inf)
+        in_window = (t >= onset[i]) & (t <= onset[i] + settings.t_detec_s)
+        for level, hit, pre_key, post_key in ((fault[i], fault[i], "false_alarm_time_s", "detection_time_s"),
+                                              (det[i], det[i] >= 1, "false_identification_time_s",
+                                               "identification_time_s")):
+            fa = settled & before & clear & hit
+            assert float(raw[pre_key][i]) == (t[fa][0] if fa.any() else np.inf)
+            window = in_window & hit
+            assert float(raw[post_key][i]) == (t[window][0] if window.any() else np.inf)
+        window = in_window & (det[i] >= 1)
+        assert int(raw["identified_model"][i]) == (det[i][window][0] if window.any() else -1)
         excited = np.asarray(out.excited[i])
         ratio = np.asarray(out.theta[i]) / np.where(excited, np.asarray(out.theta_u[i]), 1.0)[:, None]
         pre = settled & before & clear & excited
         expect_max = ratio[pre].max(axis=0) if pre.any() else np.full(ratio.shape[1], -np.inf)
         np.testing.assert_allclose(np.asarray(raw["ratio_max_pre"][i]), expect_max, rtol=1e-12)
+        post = in_window & excited
+        np.testing.assert_allclose(float(raw["ratio0_max_post"][i]), ratio[post, 0].max() if post.any() else -np.inf,
+                                   rtol=1e-12)
         quiet = settled & before & clear
         theta_stall = np.asarray(out.theta_stall[i])
         expect_stall = theta_stall[quiet].max() if quiet.any() else -np.inf
@@ -179,6 +188,7 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
         np.testing.assert_allclose(float(raw["stall_worst_latency_signal_s"][i]), worst, atol=1e-12)
     assert int(np.asarray(raw["stall_events"]).sum()) > 0, "the test space should produce stall loads"
     assert np.isfinite(np.asarray(raw["detection_time_s"])).any(), "the test space should produce detections"
+    assert np.isfinite(np.asarray(raw["identification_time_s"])).any(), "... and identifications"
 
 
 @pytest.mark.parametrize("k,n", [(0, 10), (0, 3000), (3, 40), (40, 40), (17, 123)])

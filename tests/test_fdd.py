@@ -419,6 +419,35 @@ def test_signature_and_threshold_direction():
     assert decision.threshold(theta, 0.3).tolist() == [False, False, True, True]
 
 
+def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
+    """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
+    the sample's (u, sgn(u_c - u)): the signature of system.step against numpy, and f = 0 is constant tau."""
+    n = 400
+    u_c = smooth_command(n)
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u, _ = lpv_plant(gain, 1, u_c, u_c[0])
+    k0 = np.asarray(bank.k0)
+    for f in (0.0, 1.0):
+        params = FddConfig(loe=LoeDetectionConfig(tau=0.02, tau_schedule=f, max_load_fraction=1.0)).params(
+            bank, r_arm_m=R_ARM_M)
+
+        def body(state, inp):
+            c, m, t = inp
+            state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+            return state, (out.theta, out.theta_u, out.iota)
+
+        theta, theta_u, iota = (np.asarray(x) for x in jax.jit(lambda: jax.lax.scan(
+            body, system.init(params, u[0]), (u_c, u[:-1], np.arange(n) * DT_S))[1])())
+        expect = np.empty_like(iota)
+        for i in range(n):
+            k = gain(u[i], np.sign(u_c[i] - u[i]))
+            d = np.array([[thresholds.hinf_distance(a, b) * (a + b) / k0[ia] if ia != ib else np.inf
+                           for ib, b in enumerate(k)] for ia, a in enumerate(k)])
+            expect[i] = theta[i] >= np.maximum(0.02, f * d.min(axis=1)) * theta_u[i]
+        assert (iota == expect).all()
+        assert f == 0.0 or (iota != (theta >= 0.02 * theta_u[:, None])).any(), "the schedule must change decisions"
+
+
 # ---------------------------------------------------------------------------------------------
 # Stall identification, Section 5.4
 

@@ -4,9 +4,13 @@ Plant and both FDD systems run together in one scan per scenario; the carry hold
 dynamic states, running reductions of what a campaign reports, so memory is O(batch), not
 O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
 
-- LOE model detection: false alarm (a decision for a fault model after the settling time, before
-  any fault and away from stall loads) with its first time and model; detection (first decision
-  for a fault model within [t_f, t_f + t_detec]) with time and model; per filter i the largest
+- LOE, two levels. Detection (the fault-free model rejected, confirmed): false alarm (a
+  detection after the settling time, before any fault and away from stall loads) with its first
+  time; detection time (first detection within [t_f, t_f + t_detec]). Identification (a fault
+  model decoded from the signature, confirmed): the first identified fault model and its time,
+  before any fault (away from stall loads, after settling) and within the detection window; the
+  fault-free filter's largest ratio within the window (its inf over faulty runs is the
+  detection bound of eq. 27 for the detection level); per filter i the largest
   ratio theta_i / ||u|| before the fault and the smallest within the detection window (excited
   samples only, where a decision can be made); the fault-free filter's largest ratio (no false
   alarm is possible while it stays below tau) and, over the detection window, the peak of the
@@ -61,9 +65,12 @@ class Truth(NamedTuple):
 class Reduction(NamedTuple):
     finite: jnp.ndarray
     fa_time: jnp.ndarray
-    fa_model: jnp.ndarray
     det_time: jnp.ndarray
-    det_model: jnp.ndarray
+    fid_time: jnp.ndarray
+    fid_model: jnp.ndarray
+    id_time: jnp.ndarray
+    id_model: jnp.ndarray
+    ratio0_max_post: jnp.ndarray
     ratio_max_pre: jnp.ndarray
     ratio_min_post: jnp.ndarray
     others_min_peak: jnp.ndarray
@@ -91,8 +98,10 @@ def reduction_init(n_models: int, dtype) -> Reduction:
     inf = jnp.asarray(jnp.inf, dtype)
     zero_i = jnp.asarray(0, jnp.int32)
     return Reduction(
-        finite=jnp.asarray(True), fa_time=inf, fa_model=jnp.asarray(decision.NO_DECISION, jnp.int32), det_time=inf,
-        det_model=jnp.asarray(decision.NO_DECISION, jnp.int32), ratio_max_pre=jnp.full(n_models, -inf),
+        finite=jnp.asarray(True), fa_time=inf, det_time=inf, fid_time=inf,
+        fid_model=jnp.asarray(decision.NO_DECISION, jnp.int32), id_time=inf,
+        id_model=jnp.asarray(decision.NO_DECISION, jnp.int32), ratio0_max_post=-inf,
+        ratio_max_pre=jnp.full(n_models, -inf),
         ratio_min_post=jnp.full(n_models, inf), others_min_peak=-inf, in_event=jnp.asarray(False),
         event_start=inf, event_max_error=jnp.zeros((), dtype), event_theta_peak=-inf, event_eta_signal=inf,
         event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
@@ -165,22 +174,27 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     settled = t >= s.settle_s
     clear_of_stall = ~stall_now & (t - red.last_stall_end > s.stall_grace_s)
     before_fault = t < truth.onset_s
-    fault_model = fdd.detected >= 1
-    new_fa = settled & before_fault & clear_of_stall & fault_model & ~jnp.isfinite(red.fa_time)
+    quiet = settled & before_fault & clear_of_stall
     in_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s)
-    new_det = in_window & fault_model & ~jnp.isfinite(red.det_time)
+    new_fa = quiet & fdd.fault_detected & ~jnp.isfinite(red.fa_time)
+    new_det = in_window & fdd.fault_detected & ~jnp.isfinite(red.det_time)
+    fault_model = fdd.detected >= 1
+    new_fid = quiet & fault_model & ~jnp.isfinite(red.fid_time)
+    new_id = in_window & fault_model & ~jnp.isfinite(red.id_time)
     ratio = fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0)
-    pre = settled & before_fault & clear_of_stall & fdd.excited
+    pre = quiet & fdd.excited
     post = in_window & fdd.excited
     others_min = jnp.min(jnp.where(truth.accept, jnp.inf, ratio))
-    quiet = settled & before_fault & clear_of_stall
     finite = jnp.isfinite(plant.u_m) & jnp.isfinite(fdd.theta_stall) & jnp.all(jnp.isfinite(fdd.theta))
     return red._replace(
         finite=red.finite & finite,
         fa_time=jnp.where(new_fa, t, red.fa_time),
-        fa_model=jnp.where(new_fa, fdd.detected, red.fa_model),
         det_time=jnp.where(new_det, t, red.det_time),
-        det_model=jnp.where(new_det, fdd.detected, red.det_model),
+        fid_time=jnp.where(new_fid, t, red.fid_time),
+        fid_model=jnp.where(new_fid, fdd.detected, red.fid_model),
+        id_time=jnp.where(new_id, t, red.id_time),
+        id_model=jnp.where(new_id, fdd.detected, red.id_model),
+        ratio0_max_post=jnp.where(post, jnp.maximum(red.ratio0_max_post, ratio[0]), red.ratio0_max_post),
         ratio_max_pre=jnp.where(pre, jnp.maximum(red.ratio_max_pre, ratio), red.ratio_max_pre),
         ratio_min_post=jnp.where(post, jnp.minimum(red.ratio_min_post, ratio), red.ratio_min_post),
         others_min_peak=jnp.where(post, jnp.maximum(red.others_min_peak, others_min), red.others_min_peak),
@@ -198,8 +212,10 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
                        eta_outside_model=jnp.minimum(red.eta_outside_model, red.eta_pending_model))
     return {
         "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
-        "false_alarm_time_s": red.fa_time, "false_alarm_model": red.fa_model,
-        "detection_time_s": red.det_time, "detected_model": red.det_model,
+        "false_alarm_time_s": red.fa_time, "detection_time_s": red.det_time,
+        "false_identification_time_s": red.fid_time, "false_identification_model": red.fid_model,
+        "identification_time_s": red.id_time, "identified_model": red.id_model,
+        "ratio0_max_post": red.ratio0_max_post,
         "ratio_max_pre": red.ratio_max_pre, "ratio_min_post": red.ratio_min_post,
         "others_min_peak": red.others_min_peak,
         "stall_events": red.n_events, "stall_identified_signal": red.n_identified_signal,

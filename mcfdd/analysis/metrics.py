@@ -1,11 +1,14 @@
 """FDD performance metrics (DESIGN.md section 5): outcomes per scenario, rates with exact intervals.
 
-- False alarm: a decision for a fault model (or eta = 1) with no fault present and no stall
-  under way, after the settling time. FAR = runs with a false alarm / runs.
-- Detection time: first decision for a fault model after the fault onset; missed detection if
-  none within the detection window [t_f, t_f + t_detec] (cut at the end of the run).
-- Identification: correct if the detected model is the grid model nearest to the true fault or
-  one of the two that bracket it.
+- Two levels: detection (the fault-free model rejected: "an LOE fault is present") and
+  identification (the decoded model of the signature (15)).
+- False alarm: a detection (or eta = 1) with no fault present and no stall under way, after the
+  settling time. FAR = runs with a false alarm / runs.
+- Detection time: first detection after the fault onset; missed detection if none within the
+  detection window [t_f, t_f + t_detec] (cut at the end of the run).
+- Identification: the first fault model identified within the detection window (in fault-free
+  runs: before any fault, a false identification); correct if it is the grid model nearest to
+  the true fault or one of the two that bracket it.
 - Rates carry exact Clopper-Pearson intervals: zero events in n runs only shows a rate below
   about 3/n at 95 %.
 """
@@ -55,11 +58,14 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
     onset = np.asarray(onset_s, dtype=float)
     ok = np.asarray(raw["status"]) == 0
     det_time = np.asarray(raw["detection_time_s"], dtype=float)
-    det_model = np.asarray(raw["detected_model"])
     faulty = np.isfinite(onset)
     detected = ok & faulty & np.isfinite(det_time)
+    id_time = np.where(faulty, np.asarray(raw["identification_time_s"], dtype=float),
+                       np.asarray(raw["false_identification_time_s"], dtype=float))
+    identified = ok & np.isfinite(id_time)
+    id_model = np.where(identified, np.where(faulty, raw["identified_model"], raw["false_identification_model"]), -1)
     rows = np.arange(len(onset))
-    correct = detected & accept[rows, np.clip(det_model, 0, accept.shape[1] - 1)] & (det_model >= 0)
+    correct = identified & faulty & accept[rows, np.clip(id_model, 0, accept.shape[1] - 1)] & (id_model >= 0)
     eta_sig = np.asarray(raw["eta_outside_signal_time_s"], dtype=float)
     eta_mod = np.asarray(raw["eta_outside_model_time_s"], dtype=float)
     before = np.where(faulty, onset, np.inf)
@@ -70,12 +76,14 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "window_s": np.where(faulty, np.minimum(t_detec_s, np.maximum(duration_s - onset, 0.0)), np.nan),
         "false_alarm": ok & np.isfinite(np.asarray(raw["false_alarm_time_s"], dtype=float)),
         "false_alarm_time_s": np.asarray(raw["false_alarm_time_s"], dtype=float),
-        "false_alarm_model": np.asarray(raw["false_alarm_model"]),
         "detected": detected,
         "detection_time_s": np.where(detected, det_time, np.nan),
         "detection_latency_s": np.where(detected, det_time - np.where(faulty, onset, 0.0), np.nan),
-        "detected_model": np.where(detected, det_model, -1),
+        "identified_model": id_model,
+        "identification_time_s": np.where(identified, id_time, np.nan),
+        "identification_latency_s": np.where(identified & faulty, id_time - np.where(faulty, onset, 0.0), np.nan),
         "identified_correctly": correct,
+        "false_identification": identified & ~faulty,
         "stall_events": n_events,
         "stall_seen": np.asarray(raw["stall_seen"]),
         "stall_identified_signal": np.asarray(raw["stall_identified_signal"]),
@@ -90,6 +98,7 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "stall_theta_peak_min": _finite_or_nan(raw["stall_theta_peak_min"]),
         "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
         "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
+        "loe_ratio0_max_post": _finite_or_nan(raw["ratio0_max_post"]),
     }
 
 
