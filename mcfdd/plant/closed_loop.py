@@ -141,7 +141,7 @@ def init(params: RunParams, noise3) -> PlantState:
                       turbulence.init(params.turbulence, noise3))
 
 
-def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 4,
+def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 2,
          kinds: tuple[int, ...] = tuple(range(len(manoeuvres.KINDS)))):
     """One sample of the closed loop. ``noise`` holds NOISE_DIM standard normals.
 
