@@ -70,7 +70,8 @@ class ActuatorState(NamedTuple):
 
 
 class ActuatorOutputs(NamedTuple):
-    """Signals at the start of a step: rod position, available pressure, stall flag, active nu."""
+    """Signals at the start of a step: rod position and rate, available pressure, stall flag, active
+    nu, the hinge load as a fraction of the stall force ``|F_aero| / (nu1 dP S)`` and the jam flag."""
 
     x_m: jnp.ndarray
     rate_m_s: jnp.ndarray
@@ -78,6 +79,8 @@ class ActuatorOutputs(NamedTuple):
     stall: jnp.ndarray
     nu1: jnp.ndarray
     nu2: jnp.ndarray
+    load_fraction: jnp.ndarray
+    jammed: jnp.ndarray
 
 
 def _safe_sqrt(value):
@@ -182,5 +185,7 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
         stall=(a0 <= STALL_MARGIN * params.supply_pressure_pa) & ~jammed,
         nu1=nu1,
         nu2=nu2,
+        load_fraction=jnp.abs(load0) / (nu1 * params.supply_pressure_pa * params.piston_area_m2),
+        jammed=jammed,
     )
     return ActuatorState(x1), outputs
