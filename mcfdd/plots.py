@@ -300,7 +300,7 @@ def detectability(det: pd.DataFrame) -> Figure:
     """
     qbar_bins, load_bins = (sorted(set(det[c]), key=bin_lower_edge) for c in ("qbar_kpa_bin", "load_fraction_bin"))
     kinds = list(dict.fromkeys(det["fault_kind"]))
-    fig = Figure(figsize=(1.0 + 0.9 * len(qbar_bins) * max(len(kinds), 1), 1.6 + 0.62 * len(load_bins)),
+    fig = Figure(figsize=(1.0 + 0.9 * max(len(qbar_bins), 4) * max(len(kinds), 1), 1.6 + 0.62 * max(len(load_bins), 4)),
                  constrained_layout=True)
     axes = np.atleast_1d(fig.subplots(1, max(len(kinds), 1), sharey=True, squeeze=False)[0])
     image = None
@@ -323,6 +323,10 @@ def detectability(det: pd.DataFrame) -> Figure:
     axes[0].set_ylabel("peak load fraction |F| / (nu1 dP S)")
     if image is not None:
         fig.colorbar(image, ax=list(axes), label="missed-detection rate", shrink=0.8)
+    else:
+        axes[0].text(0.5, 0.5, "no parametric faults in this campaign", ha="center", va="center",
+                     transform=axes[0].transAxes)
+        axes[0].set_axis_off()
     return fig
 
 

@@ -19,6 +19,9 @@ ALTITUDE_BINS_M = (-1.0, 3000.0, 7000.0, 20000.0)
 QBAR_BINS_KPA = (0.0, 5.0, 10.0, 15.0, 20.0, 100.0)
 LOAD_FRACTION_BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 10.0)
 NO_MOTION = "no motion"
+DETECTABILITY_COLUMNS = ("fault_kind", "qbar_kpa_bin", "load_fraction_bin", "faulty_runs", "missed", "mdr", "mdr_lo",
+                         "mdr_hi", "separable_runs", "separable", "missed_separable", "fault_distance_median",
+                         "uncertainty_distance_median", "fault_free_runs", "false_alarms", "far", "far_lo", "far_hi")
 
 
 def fault_class(df: pd.DataFrame) -> pd.Series:
@@ -345,7 +348,7 @@ def detectability(df: pd.DataFrame) -> pd.DataFrame:
                 "uncertainty_distance_median": float(g["uncertainty_distance"].median()),
                 "fault_free_runs": far["n"], "false_alarms": far["k"], "far": far["rate"], "far_lo": far["lo"],
                 "far_hi": far["hi"]})
-    det = pd.DataFrame(rows)
+    det = pd.DataFrame(rows, columns=list(DETECTABILITY_COLUMNS))
     if det.empty:
         return det
     order = det["fault_kind"].map({"leakage": 0, "surface_damage": 1, "disconnection": 2})
@@ -369,7 +372,7 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
              "Misses in separable runs are the FDD's; in the others nothing could tell the fault from the "
              "uncertainty.", ""]
     ok = df["status"] == 0
-    for kind in det["fault_kind"].unique() if len(det) else []:
+    for kind in det["fault_kind"].unique():
         g = df[ok & (df["fault_kind"] == kind) & (df["true_model"] > 0)]
         sep = g["separable"].to_numpy(dtype=bool)
         missed = g["missed"].to_numpy(dtype=bool)
@@ -378,6 +381,8 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
         lines.append(f"- {kind}: missed {_interval(a['k'], a['n'], a['lo'], a['hi'])} of the separable runs (the FDD "
                      f"misses what it could see), {_interval(b['k'], b['n'], b['lo'], b['hi'])} of the runs not "
                      "separable under this uncertainty (nothing could).")
+    if det.empty:
+        return "\n".join(lines + ["No parametric faults in this campaign."]) + "\n"
     lines += ["", "| fault | qbar (kPa) | peak load fraction | separable | fault / uncertainty distance (median) "
               "| MDR | missed, separable runs | FAR (fault-free runs) |", "|---|---|---|---|---|---|---|---|"]
     for _, r in det.iterrows():

@@ -101,3 +101,13 @@ def test_stall_scoring_counts_jams_taken_for_stalls():
     text = report.stall_scoring_markdown(df)
     assert "2/4 = 0.5" in text and "median 2.5 s, max 4 s" in text
     assert "LOE false alarms in fault-free runs: 1/2 = 0.5" in text
+
+
+def test_campaign_without_parametric_faults_reports_no_cells():
+    df = _table()
+    df = df[df["fault_kind"] == "none"]
+    det = report.detectability(df)
+    assert det.empty and list(det.columns) == list(report.DETECTABILITY_COLUMNS)
+    assert "No parametric faults in this campaign." in report.detectability_markdown(det, df)
+    fig = plots.detectability(det)
+    assert "no parametric faults" in fig.axes[0].texts[0].get_text()
