@@ -420,7 +420,7 @@ class FddConfig:
 class SimulationConfig:
     duration_s: float = spec(30.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
-    substeps: int = spec(4, lo=1, hi=64, doc="actuator integration sub-steps per sample")
+    substeps: int = spec(2, lo=1, hi=64, doc="actuator sub-steps per sample in the linear range of the valve")
     seed: int = spec(0, lo=0)
     precision: str = spec("float32", choices=("float32", "float64"))
 
@@ -572,7 +572,7 @@ class CampaignSettings:
     chunk_size: int = spec(1024, lo=1, hi=1_000_000)
     duration_s: float = spec(60.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
-    substeps: int = spec(4, lo=1, hi=64)
+    substeps: int = spec(2, lo=1, hi=64)
     precision: str = spec("float32", choices=("float32", "float64"))
 
     @property

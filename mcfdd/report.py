@@ -16,6 +16,12 @@ from mcfdd.analysis import metrics
 FAULT_BANDS = {"leakage": (0.0, 0.1, 0.2, 0.3, 1.0), "surface_damage": (0.0, 0.25, 0.5, 0.75, 1.0)}
 VCAS_BINS_KT = (0.0, 200.0, 250.0, 300.0, 1000.0)
 ALTITUDE_BINS_M = (-1.0, 3000.0, 7000.0, 20000.0)
+QBAR_BINS_KPA = (0.0, 5.0, 10.0, 15.0, 20.0, 100.0)
+LOAD_FRACTION_BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 10.0)
+NO_MOTION = "no motion"
+DETECTABILITY_COLUMNS = ("fault_kind", "qbar_kpa_bin", "load_fraction_bin", "faulty_runs", "missed", "mdr", "mdr_lo",
+                         "mdr_hi", "separable_runs", "separable", "missed_separable", "fault_distance_median",
+                         "uncertainty_distance_median", "fault_free_runs", "false_alarms", "far", "far_lo", "far_hi")
 
 
 def fault_class(df: pd.DataFrame) -> pd.Series:
@@ -67,6 +73,10 @@ def _rates(group: pd.DataFrame) -> dict:
         "stall_rate_model": stall_mod["rate"], "stall_rate_model_lo": stall_mod["lo"],
         "stall_worst_latency_signal_s": float(group["stall_worst_latency_signal_s"].max()),
         "stall_worst_latency_model_s": float(group["stall_worst_latency_model_s"].max()),
+        "jammed_runs": int((ok & (group["fault_kind"] == "jamming")).sum()),
+        "jam_taken_for_stall": int((ok & group["jam_taken_for_stall"]).sum()),
+        "fault_free_runs": int((ok & (group["fault_kind"] == "none")).sum()),
+        "loe_false_alarms_fault_free": int((ok & (group["fault_kind"] == "none") & group["false_alarm"]).sum()),
     }
 
 
@@ -309,4 +319,112 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
             for k in ("tau_f", "tau_d", "normalised_gap"))),
     ):
         lines.append(f"| {name} | " + " | ".join(cell(r) for _, r in validation.iterrows()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------------
+# Detectability and stall scoring (``mcfdd campaign``)
+
+
+def _bin_labels(values: pd.Series, edges) -> pd.Series:
+    """``[lo, hi)`` labels of ``values`` in ``edges``; nan (the rod never moved) is :data:`NO_MOTION`."""
+    labels = pd.cut(values, edges, right=False).astype(str)
+    return labels.where(values.notna(), NO_MOTION)
+
+
+def detectability(df: pd.DataFrame) -> pd.DataFrame:
+    """FAR and MDR per fault kind and (dynamic-pressure bin x peak-load-fraction bin), tidy.
+
+    A faulty run counts in the cell of its dynamic pressure and its peak load fraction after the
+    onset; fault-free runs (over their settled run) give the FAR of the same cell, repeated for each
+    fault kind. MDR counts the ``missed`` column of :func:`mcfdd.analysis.metrics.outcomes`. A cell is
+    separable when most of its faulty runs are (fault distance above the uncertainty distance).
+    """
+    cell = ["qbar_kpa_bin", "load_fraction_bin"]
+    df = df[df["status"] == 0].assign(qbar_kpa_bin=_bin_labels(df["qbar_kpa"], QBAR_BINS_KPA),
+                                      load_fraction_bin=_bin_labels(df["peak_load_fraction"], LOAD_FRACTION_BINS))
+    free = df[df["fault_kind"] == "none"]
+    free_cells = dict(tuple(free.groupby(cell)))
+    rows = []
+    for kind in [k for k in ("leakage", "surface_damage", "disconnection") if (df["fault_kind"] == k).any()]:
+        faulty = df[(df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        for key, g in faulty.groupby(cell):
+            mdr = metrics.rate(int(g["missed"].sum()), len(g))
+            sep = g["separable"].to_numpy(dtype=bool)
+            fa = free_cells.get(key, free.iloc[:0])
+            far = metrics.rate(int(fa["false_alarm"].sum()), len(fa))
+            rows.append({
+                "fault_kind": kind, "qbar_kpa_bin": key[0], "load_fraction_bin": key[1],
+                "faulty_runs": mdr["n"], "missed": mdr["k"], "mdr": mdr["rate"], "mdr_lo": mdr["lo"],
+                "mdr_hi": mdr["hi"], "separable_runs": int(sep.sum()), "separable": bool(sep.mean() > 0.5),
+                "missed_separable": int(g["missed"].to_numpy(dtype=bool)[sep].sum()),
+                "fault_distance_median": float(g["fault_distance"].median()),
+                "uncertainty_distance_median": float(g["uncertainty_distance"].median()),
+                "fault_free_runs": far["n"], "false_alarms": far["k"], "far": far["rate"], "far_lo": far["lo"],
+                "far_hi": far["hi"]})
+    det = pd.DataFrame(rows, columns=list(DETECTABILITY_COLUMNS))
+    if det.empty:
+        return det
+    order = det["fault_kind"].map({"leakage": 0, "surface_damage": 1, "disconnection": 2})
+    keys = pd.DataFrame({"kind": order, "qbar": det["qbar_kpa_bin"].map(bin_lower_edge),
+                         "load": det["load_fraction_bin"].map(bin_lower_edge)})
+    return det.loc[keys.sort_values(list(keys.columns)).index].reset_index(drop=True)
+
+
+def bin_lower_edge(label: str) -> float:
+    """Lower edge of a ``[lo, hi)`` label; :data:`NO_MOTION` sorts last."""
+    return float(label[1:].split(",")[0]) if label.startswith("[") else np.inf
+
+
+def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
+    """Section of summary.md: per fault kind, misses where the fault was separable and where it was not."""
+    lines = ["", "## Detectability under the campaign's uncertainty", "",
+             "Distance (16) |k_j - k_i| / (k_i + k_j) on the plant's small-error gains at each run's peak hinge-load "
+             "fraction after the onset (rod moving): fault-free against the true fault, and the largest distance the "
+             "uncertainty ranges of the campaign (Kci, supply pressure, hinge load) create on the fault-free gain. "
+             "A run is separable when the first exceeds the second; a cell when most of its faulty runs are. "
+             "Misses in separable runs are the FDD's; in the others nothing could tell the fault from the "
+             "uncertainty.", ""]
+    ok = df["status"] == 0
+    for kind in det["fault_kind"].unique():
+        g = df[ok & (df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        sep = g["separable"].to_numpy(dtype=bool)
+        missed = g["missed"].to_numpy(dtype=bool)
+        a = metrics.rate(int(missed[sep].sum()), int(sep.sum()))
+        b = metrics.rate(int(missed[~sep].sum()), int((~sep).sum()))
+        lines.append(f"- {kind}: missed {_interval(a['k'], a['n'], a['lo'], a['hi'])} of the separable runs (the FDD "
+                     f"misses what it could see), {_interval(b['k'], b['n'], b['lo'], b['hi'])} of the runs not "
+                     "separable under this uncertainty (nothing could).")
+    if det.empty:
+        return "\n".join(lines + ["No parametric faults in this campaign."]) + "\n"
+    lines += ["", "| fault | qbar (kPa) | peak load fraction | separable | fault / uncertainty distance (median) "
+              "| MDR | missed, separable runs | FAR (fault-free runs) |", "|---|---|---|---|---|---|---|---|"]
+    for _, r in det.iterrows():
+        lines.append(f"| {r['fault_kind']} | {r['qbar_kpa_bin']} | {r['load_fraction_bin']} "
+                     f"| {'yes' if r['separable'] else 'no'} ({r['separable_runs']}/{r['faulty_runs']}) "
+                     f"| {_fmt(r['fault_distance_median'])} / {_fmt(r['uncertainty_distance_median'])} "
+                     f"| {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
+                     f"| {r['missed_separable']}/{r['separable_runs']} "
+                     f"| {_interval(r['false_alarms'], r['fault_free_runs'], r['far_lo'], r['far_hi'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def stall_scoring_markdown(df: pd.DataFrame) -> str:
+    """Section of summary.md: jams taken for stalls (eta = 1 on a jammed rod) and LOE false alarms."""
+    ok = df["status"] == 0
+    jammed = df[ok & (df["fault_kind"] == "jamming")]
+    free = df[ok & (df["fault_kind"] == "none")]
+    loe = metrics.rate(int(free["false_alarm"].sum()), len(free))
+    lines = ["", "## Jams taken for stalls and LOE false alarms", ""]
+    if len(jammed):
+        taken = jammed["jam_taken_for_stall"].to_numpy(dtype=bool)
+        jam = metrics.rate(int(taken.sum()), len(jammed))
+        after = (jammed["jam_taken_for_stall_time_s"] - jammed["fault_onset_s"])[taken]
+        t = metrics.quantiles(after)
+        lines.append(f"- Jammed runs with eta = 1 (either identification method) on the jammed rod: "
+                     f"{_interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}; time after the jam onset median "
+                     f"{_fmt(t['median'])} s, max {_fmt(t['max'])} s.")
+    else:
+        lines.append("- No jammed runs in this campaign.")
+    lines.append(f"- LOE false alarms in fault-free runs: {_interval(loe['k'], loe['n'], loe['lo'], loe['hi'])}.")
     return "\n".join(lines) + "\n"

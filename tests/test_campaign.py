@@ -97,7 +97,8 @@ def test_interrupted_campaign_resumes_to_the_same_table(reference_run, tmp_path,
 
 def test_outputs_carry_provenance_and_summaries(reference_run):
     _, out = reference_run
-    for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "scenarios/part-00000000.parquet"):
+    for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "detectability.parquet",
+                 "scenarios/part-00000000.parquet"):
         meta = cli.io.read_metadata(out / name)
         assert json.loads(meta["config"])["campaign"]["seed"] == 7
         assert meta["seed"] == "7" and meta["version"] and meta["git_revision"]
@@ -107,7 +108,13 @@ def test_outputs_carry_provenance_and_summaries(reference_run):
     assert overall["runs"] == len(table)
     assert overall["false_alarms"] == int((table["false_alarm"] | table["eta_false_signal"]).sum())
     assert (out / "summary.md").read_text().startswith("# Campaign")
-    for png in ("rates_by_fault.png", "detection_times.png", "confusion.png"):
+    assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
+    assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
+            "separable", "missed", "jam_taken_for_stall", "jam_taken_for_stall_time_s"} <= set(table.columns)
+    det = pd.read_parquet(out / "detectability.parquet")
+    assert det["faulty_runs"].sum() == int((table["fault_kind"].isin(scenarios.PARAMETRIC) & (table["true_model"] > 0)
+                                            & (table["status"] == 0)).sum())
+    for png in ("rates_by_fault.png", "detection_times.png", "confusion.png", "detectability.png"):
         assert (out / png).stat().st_size > 0
 
 
@@ -186,6 +193,17 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
                     worst = max(worst, t[start + eta.argmax()] - t[start])
         assert int(raw["stall_events"][i]) == relevant
         np.testing.assert_allclose(float(raw["stall_worst_latency_signal_s"][i]), worst, atol=1e-12)
+        after = t >= (onset[i] if np.isfinite(onset[i]) else settings.settle_s)
+        rate, load = np.abs(np.asarray(plant.rate_m_s[i])), np.asarray(plant.load_fraction[i])
+        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf) for f in (1 + 1e-9, 1 - 1e-9)]
+        assert peaks[0] * (1 - 1e-12) <= float(raw["peak_load_fraction"][i]) <= peaks[1] * (1 + 1e-12), (i, peaks)
+        np.testing.assert_allclose(float(raw["peak_deflection_deg"][i]),
+                                   np.degrees(np.abs(np.asarray(plant.x_m[i])[after]).max() / model.actuator.r_arm_m),
+                                   rtol=1e-12)
+        jam_eta = np.asarray(plant.jammed[i]) & (np.asarray(out.eta_signal[i]) | np.asarray(out.eta_model[i]))
+        assert float(raw["jam_stall_time_s"][i]) == (t[jam_eta][0] if jam_eta.any() else np.inf)
+        jam_onset = float(np.asarray(scen.fault.jam_onset_s)[i])
+        np.testing.assert_array_equal(np.asarray(plant.jammed[i]), t >= jam_onset)
     assert int(np.asarray(raw["stall_events"]).sum()) > 0, "the test space should produce stall loads"
     assert np.isfinite(np.asarray(raw["detection_time_s"])).any(), "the test space should produce detections"
     assert np.isfinite(np.asarray(raw["identification_time_s"])).any(), "... and identifications"

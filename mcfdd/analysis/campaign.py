@@ -23,6 +23,10 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
   detector's largest theta outside events before any fault (its false-alarm bound, eq. 26) and,
   per relevant event, the peak theta within ``stall_window_s`` of the onset (its smallest value
   over the run feeds the detection bound, eq. 27, read as "detected within the window").
+- Plant truth for detectability: the largest hinge-load fraction ``|F_aero| / (nu1 dP S)`` while
+  the rod moves (rate at least ``MOVING_RATE_M_S``) and the largest |deflection|, both after the
+  fault onset (for fault-free runs over the settled run).
+- Jams taken for stalls: the first eta = 1 (either identification method) on a jammed rod.
 - status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
 """
 
@@ -42,6 +46,7 @@ from mcfdd.plant import closed_loop
 
 STATUS_OK = 0
 STATUS_NON_FINITE = 1
+MOVING_RATE_M_S = 1e-3  # rod rate (about 1.1 deg/s of surface) above which the rod counts as moving
 
 
 class Settings(NamedTuple):
@@ -92,6 +97,9 @@ class Reduction(NamedTuple):
     eta_pending_signal: jnp.ndarray
     eta_pending_model: jnp.ndarray
     theta_stall_max_free: jnp.ndarray
+    peak_load_fraction: jnp.ndarray
+    peak_deflection_rad: jnp.ndarray
+    jam_stall_time: jnp.ndarray
 
 
 def reduction_init(n_models: int, dtype) -> Reduction:
@@ -107,7 +115,7 @@ def reduction_init(n_models: int, dtype) -> Reduction:
         event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
         n_identified_model=zero_i, worst_latency_signal=-inf, worst_latency_model=-inf, theta_peak_min=inf,
         eta_outside_signal=inf, eta_outside_model=inf, eta_pending_signal=inf, eta_pending_model=inf,
-        theta_stall_max_free=-inf)
+        theta_stall_max_free=-inf, peak_load_fraction=-inf, peak_deflection_rad=-inf, jam_stall_time=inf)
 
 
 def _close_event(s: Settings, red: Reduction, t_end, closing):
@@ -202,7 +210,23 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
         **_eta_outside(s, red, "model", settled & clear_of_stall & fdd.eta_model, opening, t),
         theta_stall_max_free=jnp.where(quiet, jnp.maximum(red.theta_stall_max_free, fdd.theta_stall),
                                        red.theta_stall_max_free),
+        **_truth_peaks(s, truth, red, t, plant, fdd),
     )
+
+
+def _truth_peaks(s: Settings, truth: Truth, red: Reduction, t, plant: closed_loop.PlantOutputs,
+                 fdd: system.FddOutputs) -> dict:
+    """Peak load fraction (rod moving) and peak |deflection| after the onset; first eta = 1 on a jammed rod."""
+    after = jnp.where(jnp.isfinite(truth.onset_s), t >= truth.onset_s, t >= s.settle_s)
+    moving = after & (jnp.abs(plant.rate_m_s) >= MOVING_RATE_M_S)
+    jam_stall = plant.jammed & (fdd.eta_signal | fdd.eta_model)
+    return {
+        "peak_load_fraction": jnp.where(moving, jnp.maximum(red.peak_load_fraction, plant.load_fraction),
+                                        red.peak_load_fraction),
+        "peak_deflection_rad": jnp.where(after, jnp.maximum(red.peak_deflection_rad, jnp.abs(plant.delta_rad)),
+                                         red.peak_deflection_rad),
+        "jam_stall_time": jnp.where(jam_stall, jnp.minimum(red.jam_stall_time, t), red.jam_stall_time),
+    }
 
 
 def finalize(s: Settings, red: Reduction, t_end) -> dict:
@@ -224,6 +248,8 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
         "eta_outside_signal_time_s": red.eta_outside_signal, "eta_outside_model_time_s": red.eta_outside_model,
         "stall_theta_max_free": red.theta_stall_max_free,
         "stall_seen": jnp.isfinite(red.last_stall_end),
+        "peak_load_fraction": red.peak_load_fraction, "peak_deflection_deg": jnp.degrees(red.peak_deflection_rad),
+        "jam_stall_time_s": red.jam_stall_time,
     }
 
 

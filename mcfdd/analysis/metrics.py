@@ -11,12 +11,18 @@
   the true fault or one of the two that bracket it.
 - Rates carry exact Clopper-Pearson intervals: zero events in n runs only shows a rate below
   about 3/n at 95 %.
+- Detectability: the distance (16) |k_j - k_i| / (k_i + k_j) between the plant's own small-error
+  gains, fault-free against the true fault, at the run's peak load; a run is separable under
+  the campaign's uncertainty when that distance exceeds what the uncertainty alone creates.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.special import betaincinv
+
+from mcfdd.analysis import scenarios
+from mcfdd.plant import atmosphere
 
 
 def clopper_pearson(k, n, confidence: float = 0.95):
@@ -99,7 +105,75 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
         "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
         "loe_ratio0_max_post": _finite_or_nan(raw["ratio0_max_post"]),
+        "missed": ok & faulty & (np.asarray(nearest) >= 1) & ~detected,
+        "peak_load_fraction": _finite_or_nan(raw["peak_load_fraction"]),
+        "peak_deflection_deg": _finite_or_nan(raw["peak_deflection_deg"]),
+        "jam_taken_for_stall": ok & np.isfinite(np.asarray(raw["jam_stall_time_s"], dtype=float)),
+        "jam_taken_for_stall_time_s": _finite_or_nan(raw["jam_stall_time_s"]),
     }
+
+
+UNCERTAIN_SCALES = ("kci_scale", "supply_pressure_scale", "hinge_scale")
+
+
+def uncertainty_ranges(cols: dict) -> dict:
+    """(lo, hi) of each uncertain scale of :func:`small_error_gain` over a campaign's columns (1 if absent)."""
+    return {k: (float(np.min(cols[k])), float(np.max(cols[k]))) if k in cols else (1.0, 1.0)
+            for k in UNCERTAIN_SCALES}
+
+
+def small_error_gain(load, nu1=1.0, nu2=1.0, kci_scale=1.0, supply_pressure_scale=1.0, hinge_scale=1.0):
+    """Small-error gain of eq. (2) relative to Kci Kp sqrt(dP / dP_ref), for motion against (first
+    row) and with (second row) a hinge load ``load`` given as a fraction of the nominal stall force dP S.
+
+    With e -> 0 the Kd term vanishes: k = Kci Kp sqrt((nu1 dP -+ nu2 F / S) / dP_ref); zero when the
+    load wins (a stall). Broadcasts; returns shape (2, ...).
+    """
+    sign = np.array([1.0, -1.0]).reshape((2,) + (1,) * np.ndim(load))
+    inner = nu1 * supply_pressure_scale - sign * nu2 * hinge_scale * np.asarray(load, dtype=float)
+    return kci_scale * np.sqrt(np.maximum(inner, 0.0))
+
+
+def gain_distance(k_i, k_j):
+    """Distance (16) of first-order models, |k_j - k_i| / (k_i + k_j); 0 where both gains are 0."""
+    total = k_i + k_j
+    return np.where(total > 0, np.abs(k_j - k_i) / np.where(total > 0, total, 1.0), 0.0)
+
+
+def separability(peak_load_fraction, nu1, nu2, supply_pressure_scale, ranges: dict) -> dict:
+    """Per run: distance (16) of fault-free against the true fault and of the uncertainty alone.
+
+    Both on the plant's small-error gains at the run's peak load (``peak_load_fraction`` of
+    nu1 dP S, with the run's supply pressure), the larger of the two motion directions. The
+    uncertainty distance is the largest over the corners of ``ranges`` (:func:`uncertainty_ranges`;
+    the gain is monotonic in each scale) between the nominal fault-free gain and the perturbed one.
+    Runs without a peak load (nan) get nan distances and are not separable.
+    """
+    load = np.asarray(peak_load_fraction, dtype=float) * np.asarray(nu1) * np.asarray(supply_pressure_scale)
+    nominal = small_error_gain(load)
+    fault = gain_distance(nominal, small_error_gain(load, nu1, nu2)).max(axis=0)
+    corners = np.array(np.meshgrid(*(ranges[k] for k in UNCERTAIN_SCALES), indexing="ij")).reshape(3, -1).T
+    noise = np.max([gain_distance(nominal, small_error_gain(load, kci_scale=c[0], supply_pressure_scale=c[1],
+                                                             hinge_scale=c[2])).max(axis=0) for c in corners], axis=0)
+    known = np.isfinite(load)
+    fault, noise = np.where(known, fault, np.nan), np.where(known, noise, np.nan)
+    return {"fault_distance": fault, "uncertainty_distance": noise, "separable": known & (fault > noise)}
+
+
+def detectability_columns(cols: dict, peak_load_fraction, ranges: dict) -> dict:
+    """Dynamic pressure (kPa) and :func:`separability` of scenarios given by their table columns."""
+    n = len(peak_load_fraction)
+    defaults = scenarios.DEFAULTS
+    kind = np.asarray(cols.get("fault_kind", np.full(n, defaults["fault_kind"])))
+    nu1, nu2 = scenarios.fault_nu(kind, cols.get("fault_size", np.zeros(n)))
+    vcas = np.asarray(cols.get("vcas_kt", np.full(n, defaults["vcas_kt"])), dtype=float) * atmosphere.KT_TO_M_S
+    altitude = np.asarray(cols.get("altitude_m", np.full(n, defaults["altitude_m"])), dtype=float)
+    supply = np.asarray(cols.get("supply_pressure_scale", np.ones(n)), dtype=float)
+    sep = separability(peak_load_fraction, nu1, nu2, supply, ranges)
+    faulty = np.isin(kind, scenarios.PARAMETRIC)
+    return {"qbar_kpa": np.asarray(atmosphere.dynamic_pressure(vcas, altitude), dtype=float) / 1e3,
+            "fault_distance": np.where(faulty, sep["fault_distance"], np.nan),
+            "uncertainty_distance": sep["uncertainty_distance"], "separable": faulty & sep["separable"]}
 
 
 def _finite_or_nan(values):
