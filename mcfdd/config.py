@@ -325,6 +325,8 @@ class LoeDetectionConfig:
     Defaults are tuned for 0.05 mm position-sensor noise (see README): the paper's evaluator
     (alpha = 0, beta = 1, gamma = 0.1) averages sensor noise over 10 s against manoeuvre
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
+    Two levels: detection (``detection_tau``, ``detection_confirm_s``: the fault-free model
+    rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
@@ -337,7 +339,9 @@ class LoeDetectionConfig:
     detection_tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="detection: the fault-free model is "
                                 "rejected while theta_0 / ||u|| is above this and ||u|| above the excitation floor")
     detection_confirm_s: float = spec(0.5, lo=0.0, hi=60.0, doc="detection: the rejection must persist this long")
-    excitation_floor_deg: float = spec(0.05, lo=0.0, doc="no decision while ||u|| is below this")
+    excitation_floor_deg: float = spec(0.15, lo=0.0, doc="no decision (detection or identification) while ||u|| "
+                                       "is below this: theta_0 reaches 0.014 deg from 0.07 mm sensor noise in quiet "
+                                       "flight, so noise alone keeps theta_0 / ||u|| below tau = 0.1")
     confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="identification: a decoded model must persist this long")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (1 disables)")
