@@ -599,7 +599,7 @@ fdd_on_lpv_model.traces = 0
 def test_system_detects_the_plant_model(bank):
     """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
     1 once excited. A second run with another tau does not recompile."""
-    loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0)
+    loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0, excitation_floor_deg=0.05)  # noise-free
     params = FddConfig(loe=loe).params(bank, r_arm_m=R_ARM_M)
     t = np.arange(1500) * DT_S
     u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)
