@@ -32,7 +32,7 @@ from mcfdd.analysis import batch, simulate  # noqa: E402
 from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres  # noqa: E402
 
 DT_S = 0.01
-SUBSTEPS = 4
+SUBSTEPS = 2
 FAMILIES = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip", "ol_sweep", "ol_step")
 
 

@@ -92,7 +92,8 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     eta = fdd.eta_signal if fdd_cfg.stall.identification == "signal" else fdd.eta_model
     columns.update({
         "theta_u": fdd.theta_u, "load_fraction": fdd.load_fraction, "excited": fdd.excited,
-        "decoded_model": fdd.decoded, "detected_model": fdd.detected, "r_stall": fdd.r_stall,
+        "decoded_model": fdd.decoded, "detected_model": fdd.detected, "fault_detected": fdd.fault_detected,
+        "r_stall": fdd.r_stall,
         "r_stall_deg": deg(fdd.r_stall), "theta_stall": fdd.theta_stall, "iota_stall": fdd.iota_stall,
         "eta_stall": eta, "eta_signal": fdd.eta_signal, "eta_model": fdd.eta_model, "theta_sl": fdd.theta_sl,
     })
@@ -274,6 +275,8 @@ def run_campaign(cfg: config.CampaignConfig, out: Path, resume: bool = False, on
         outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
                                 cfg.evaluation.t_detec_s)
         table = {"scenario_id": ids, **{k: np.asarray(v)[ids] for k, v in cols.items()}, **outc}
+        table.update(metrics.detectability_columns({k: v[ids] for k, v in cols.items()}, outc["peak_load_fraction"],
+                                                   metrics.uncertainty_ranges(cols)))
         for i in range(len(names)):
             table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
             table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
@@ -309,7 +312,11 @@ def cmd_campaign(args) -> int:
     io.write_table(summ, out / "summary.parquet", meta)
     io.write_table(conf.reset_index(), out / "confusion.parquet", meta)
     io.write_table(gap, out / "gaps.parquet", meta)
-    io.write_text(out / "summary.md", report.markdown(f"Campaign {Path(args.config).stem}", summ, conf, gap, meta))
+    det = report.detectability(df)
+    io.write_table(det, out / "detectability.parquet", meta)
+    io.write_text(out / "summary.md", report.markdown(f"Campaign {Path(args.config).stem}", summ, conf, gap, meta)
+                  + report.detectability_markdown(det, df) + report.stall_scoring_markdown(df))
+    _save_figure(plots.detectability(det), out / "detectability.png")
     for group in ("fault", "envelope", "manoeuvre"):
         _save_figure(plots.rates_by_stratum(summ, group), out / f"rates_by_{group}.png")
     _save_figure(plots.detection_times(df, report.fault_class(df)), out / "detection_times.png")

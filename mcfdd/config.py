@@ -347,14 +347,24 @@ class LoeDetectionConfig:
     Defaults are tuned for 0.05 mm position-sensor noise (see README): the paper's evaluator
     (alpha = 0, beta = 1, gamma = 0.1) averages sensor noise over 10 s against manoeuvre
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
+    Two levels: detection (``detection_tau``, ``detection_confirm_s``: the fault-free model
+    rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=0.0, beta=1.0, gamma_1_s=1.0))
     tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
                       doc="threshold on theta_i / ||u||, about the relative gain mismatch |k_j - k_i| / k0_i")
-    excitation_floor_deg: float = spec(0.05, lo=0.0, doc="no decision while ||u|| is below this")
-    confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="a decoded model must persist this long to be decided")
+    tau_schedule: float = spec(0.0, lo=0.0, hi=1.0, doc="scheduled thresholds tau_i(rho) = max(tau, tau_schedule "
+                               "x distance (16) from model i to its nearest model at the current point, in ratio "
+                               "units); 0 keeps tau constant")
+    detection_tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="detection: the fault-free model is "
+                                "rejected while theta_0 / ||u|| is above this and ||u|| above the excitation floor")
+    detection_confirm_s: float = spec(0.5, lo=0.0, hi=60.0, doc="detection: the rejection must persist this long")
+    excitation_floor_deg: float = spec(0.15, lo=0.0, doc="no decision (detection or identification) while ||u|| "
+                                       "is below this: theta_0 reaches 0.014 deg from 0.07 mm sensor noise in quiet "
+                                       "flight, so noise alone keeps theta_0 / ||u|| below tau = 0.1")
+    confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="identification: a decoded model must persist this long")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (1 disables)")
     linear_range_deg: float = spec(3.5, lo=0.0, lo_open=True, doc="residuals are not evaluated while |u_c - u| "
@@ -417,6 +427,8 @@ class FddConfig:
         loe, stl = self.loe, self.stall
         return system.FddParams(
             loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
+                                 tau_schedule=loe.tau_schedule, detection_tau=loe.detection_tau,
+                                 detection_confirm_s=loe.detection_confirm_s,
                                  excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
                                  max_load_fraction=loe.max_load_fraction,
                                  linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
@@ -434,7 +446,7 @@ class FddConfig:
 class SimulationConfig:
     duration_s: float = spec(30.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
-    substeps: int = spec(4, lo=1, hi=64, doc="actuator integration sub-steps per sample")
+    substeps: int = spec(2, lo=1, hi=64, doc="actuator sub-steps per sample in the linear range of the valve")
     seed: int = spec(0, lo=0)
     precision: str = spec("float32", choices=("float32", "float64"))
 
@@ -588,7 +600,7 @@ class CampaignSettings:
     chunk_size: int = spec(1024, lo=1, hi=1_000_000)
     duration_s: float = spec(60.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
-    substeps: int = spec(4, lo=1, hi=64)
+    substeps: int = spec(2, lo=1, hi=64)
     precision: str = spec("float32", choices=("float32", "float64"))
 
     @property

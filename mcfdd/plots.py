@@ -5,6 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from mcfdd.report import bin_lower_edge
 
 
 def _shade(ax, t, mask, **kw):
@@ -314,3 +317,45 @@ def tuning_history(history: pd.DataFrame, units: str) -> Figure:
     for ax in (ax1, ax2, ax3):
         ax.grid(alpha=0.3)
     return fig
+
+
+def detectability(det: pd.DataFrame) -> Figure:
+    """MDR heat map per fault kind over (dynamic pressure x peak load fraction), separable cells framed.
+
+    ``det`` is :func:`mcfdd.report.detectability`. Each cell shows MDR, missed/runs and the false
+    alarms of the fault-free runs in the same cell.
+    """
+    qbar_bins, load_bins = (sorted(set(det[c]), key=bin_lower_edge) for c in ("qbar_kpa_bin", "load_fraction_bin"))
+    kinds = list(dict.fromkeys(det["fault_kind"]))
+    fig = Figure(figsize=(1.0 + 0.9 * max(len(qbar_bins), 4) * max(len(kinds), 1), 1.6 + 0.62 * max(len(load_bins), 4)),
+                 constrained_layout=True)
+    axes = np.atleast_1d(fig.subplots(1, max(len(kinds), 1), sharey=True, squeeze=False)[0])
+    image = None
+    for ax, kind in zip(axes, kinds):
+        sub = det[det["fault_kind"] == kind]
+        grid = np.full((len(load_bins), len(qbar_bins)), np.nan)
+        for _, r in sub.iterrows():
+            i, j = load_bins.index(r["load_fraction_bin"]), qbar_bins.index(r["qbar_kpa_bin"])
+            grid[i, j] = r["mdr"]
+            ax.text(j, i, f"{r['mdr']:.2f}\n{r['missed']}/{r['faulty_runs']}\nFAR {r['false_alarms']}/"
+                    f"{r['fault_free_runs']}", ha="center", va="center", fontsize=6.5,
+                    color="white" if r["mdr"] > 0.6 else "black")
+            if r["separable"]:
+                ax.add_patch(_cell_frame(j, i))
+        image = ax.imshow(grid, cmap="Reds", vmin=0.0, vmax=1.0, origin="lower", aspect="auto")
+        ax.set_xticks(range(len(qbar_bins)), qbar_bins, rotation=30, ha="right", fontsize=8)
+        ax.set_title(f"{kind}: MDR (framed: separable)", fontsize=10)
+        ax.set_xlabel("dynamic pressure (kPa)")
+    axes[0].set_yticks(range(len(load_bins)), load_bins, fontsize=8)
+    axes[0].set_ylabel("peak load fraction |F| / (nu1 dP S)")
+    if image is not None:
+        fig.colorbar(image, ax=list(axes), label="missed-detection rate", shrink=0.8)
+    else:
+        axes[0].text(0.5, 0.5, "no parametric faults in this campaign", ha="center", va="center",
+                     transform=axes[0].transAxes)
+        axes[0].set_axis_off()
+    return fig
+
+
+def _cell_frame(j, i):
+    return Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False, edgecolor="tab:blue", linewidth=2.2)

@@ -16,6 +16,12 @@ from mcfdd.analysis import metrics
 FAULT_BANDS = {"leakage": (0.0, 0.1, 0.2, 0.3, 1.0), "surface_damage": (0.0, 0.25, 0.5, 0.75, 1.0)}
 VCAS_BINS_KT = (0.0, 200.0, 250.0, 300.0, 1000.0)
 ALTITUDE_BINS_M = (-1.0, 3000.0, 7000.0, 20000.0)
+QBAR_BINS_KPA = (0.0, 5.0, 10.0, 15.0, 20.0, 100.0)
+LOAD_FRACTION_BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 10.0)
+NO_MOTION = "no motion"
+DETECTABILITY_COLUMNS = ("fault_kind", "qbar_kpa_bin", "load_fraction_bin", "faulty_runs", "missed", "mdr", "mdr_lo",
+                         "mdr_hi", "separable_runs", "separable", "missed_separable", "fault_distance_median",
+                         "uncertainty_distance_median", "fault_free_runs", "false_alarms", "far", "far_lo", "far_hi")
 
 
 def fault_class(df: pd.DataFrame) -> pd.Series:
@@ -42,8 +48,10 @@ def _rates(group: pd.DataFrame) -> dict:
     far = metrics.rate(int((fa_any & ok).sum()), int(ok.sum()))
     far_loe = metrics.rate(int((group["false_alarm"] & ok).sum()), int(ok.sum()))
     mdr = metrics.rate(int((faulty & ~group["detected"]).sum()), int(faulty.sum()))
-    ident = metrics.rate(int((faulty & group["identified_correctly"]).sum()), int((faulty & group["detected"]).sum()))
+    identified = faulty & (group["identified_model"] >= 0)
+    ident = metrics.rate(int((faulty & group["identified_correctly"]).sum()), int(identified.sum()))
     times = metrics.quantiles(group.loc[faulty & group["detected"], "detection_latency_s"])
+    id_times = metrics.quantiles(group.loc[identified, "identification_latency_s"])
     events = int(group["stall_events"].sum())
     stall_sig = metrics.rate(int(group["stall_identified_signal"].sum()), events)
     stall_mod = metrics.rate(int(group["stall_identified_model"].sum()), events)
@@ -54,14 +62,21 @@ def _rates(group: pd.DataFrame) -> dict:
         "loe_far_hi": far_loe["hi"], "eta_false_alarms_signal": int((group["eta_false_signal"] & ok).sum()),
         "eta_false_alarms_model": int((group["eta_false_model"] & ok).sum()),
         "faulty_runs": mdr["n"], "missed": mdr["k"], "mdr": mdr["rate"], "mdr_lo": mdr["lo"], "mdr_hi": mdr["hi"],
-        "identified_correctly": ident["k"], "identification_rate": ident["rate"], "identification_lo": ident["lo"],
-        "identification_hi": ident["hi"], "detection_time_median_s": times["median"],
-        "detection_time_p95_s": times["p95"], "detection_time_max_s": times["max"],
+        "identified": ident["n"], "identified_correctly": ident["k"], "identification_accuracy": ident["rate"],
+        "identification_lo": ident["lo"], "identification_hi": ident["hi"],
+        "false_identifications": int((group["false_identification"] & ok).sum()),
+        "detection_time_median_s": times["median"], "detection_time_p95_s": times["p95"],
+        "detection_time_max_s": times["max"], "identification_time_median_s": id_times["median"],
+        "identification_time_max_s": id_times["max"],
         "stall_events": events, "stall_identified_signal": stall_sig["k"], "stall_rate_signal": stall_sig["rate"],
         "stall_rate_signal_lo": stall_sig["lo"], "stall_identified_model": stall_mod["k"],
         "stall_rate_model": stall_mod["rate"], "stall_rate_model_lo": stall_mod["lo"],
         "stall_worst_latency_signal_s": float(group["stall_worst_latency_signal_s"].max()),
         "stall_worst_latency_model_s": float(group["stall_worst_latency_model_s"].max()),
+        "jammed_runs": int((ok & (group["fault_kind"] == "jamming")).sum()),
+        "jam_taken_for_stall": int((ok & group["jam_taken_for_stall"]).sum()),
+        "fault_free_runs": int((ok & (group["fault_kind"] == "none")).sum()),
+        "loe_false_alarms_fault_free": int((ok & (group["fault_kind"] == "none") & group["false_alarm"]).sum()),
     }
 
 
@@ -77,14 +92,14 @@ def summary(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def confusion(df: pd.DataFrame, model_names) -> pd.DataFrame:
-    """Counts of true (nearest) model against the first decided model (-1: none), parametric and fault-free runs."""
+    """Counts of true (nearest) model against the first identified fault model (-1: none), parametric and
+    fault-free runs (where an identification is a false one). The identification level, apart from detection."""
     ok = df["status"] == 0
     parametric = df["fault_kind"].isin(("none", "leakage", "surface_damage", "disconnection")) & ok
     sub = df[parametric]
-    decided = np.where(sub["fault_kind"] == "none", sub["false_alarm_model"], sub["detected_model"])
     names = list(model_names)
     true_names = [names[i] for i in sub["true_model"]]
-    decided_names = [names[i] if i >= 0 else "no decision" for i in decided]
+    decided_names = [names[i] if i >= 0 else "no decision" for i in sub["identified_model"]]
     table = pd.crosstab(pd.Series(true_names, name="true_model"), pd.Series(decided_names, name="decided_model"))
     columns = [n for n in names + ["no decision"] if n in table.columns]
     return table.reindex(index=[n for n in names if n in table.index], columns=columns, fill_value=0)
@@ -94,8 +109,10 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     """Detection bounds per detector, eqs. (26)-(27), with the scenario of each extreme.
 
     LOE bank (units of theta / ||u||): tau_f = sup of the fault-free filter's ratio before any fault
-    (no fault model can be decided while it is below tau); tau_d = inf over faulty runs of the peak,
-    within the detection window, of the smallest ratio among the filters that must fire.
+    (no fault model can be decided, and no fault detected, while it is below tau); identification
+    (``loe_bank``): tau_d = inf over faulty runs of the peak, within the detection window, of the
+    smallest ratio among the filters that must fire; detection (``loe_detection``): tau_d = inf over
+    faulty runs of the fault-free filter's peak ratio within the window.
     Stall detector (deg): tau_f = sup of theta over runs without any stall load, before any fault
     (the evaluator remembers a stall for about 1/gamma); tau_d = inf over relevant stall events of
     the peak theta within the stall window after onset.
@@ -106,6 +123,7 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     rows = []
     for name, free, detect, scale in (
         ("loe_bank", df["loe_ratio0_max_pre"].where(ok), df["loe_others_min_peak"].where(faulty), 1.0),
+        ("loe_detection", df["loe_ratio0_max_pre"].where(ok), df["loe_ratio0_max_post"].where(faulty), 1.0),
         ("stall_detector", df["stall_theta_max_free"].where(ok & ~df["stall_seen"]), df["stall_theta_peak_min"].where(ok),
          deg_per_m),
     ):
@@ -135,17 +153,23 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
              f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision {meta.get('git_revision')}.", "",
              "Rates with exact Clopper-Pearson 95 % intervals.", "",
-             "| stratum | runs | FAR (any) | LOE FAR | faulty | MDR | identified | detection time median / p95 / max (s) "
+             "Detection (an LOE fault is present: the fault-free model rejected) gives FAR, MDR and detection "
+             "time; identification (the decoded signature, eq. 15) gives the identified runs, their accuracy "
+             "and time, and the confusion matrix.", "",
+             "| stratum | runs | FAR (any) | LOE FAR | faulty | MDR | detection time median / p95 / max (s) "
+             "| identified: correct / runs | identification time median / max (s) "
              "| stall events | identified (signal) | identified (model) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in summ.iterrows():
         label = r["stratum"] if r["group"] == "overall" else f"{r['group']}: {r['stratum']}"
         lines.append(
             f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
             f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
             f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
-            f"| {_fmt(r['identification_rate'])} | {_fmt(r['detection_time_median_s'])} / "
-            f"{_fmt(r['detection_time_p95_s'])} / {_fmt(r['detection_time_max_s'])} | {r['stall_events']} "
+            f"| {_fmt(r['detection_time_median_s'])} / {_fmt(r['detection_time_p95_s'])} / "
+            f"{_fmt(r['detection_time_max_s'])} "
+            f"| {_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
+            f"| {_fmt(r['identification_time_median_s'])} / {_fmt(r['identification_time_max_s'])} | {r['stall_events']} "
             f"| {r['stall_identified_signal']} (worst {_fmt(r['stall_worst_latency_signal_s'])} s) "
             f"| {r['stall_identified_model']} (worst {_fmt(r['stall_worst_latency_model_s'])} s) |")
     lines += ["", "## Detection bounds (eqs. 26-27)", "",
@@ -153,7 +177,7 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     for _, r in gap.iterrows():
         lines.append(f"| {r['detector']} | {_fmt(r['tau_f'], 4)} | {r['tau_f_scenario_id']} | {_fmt(r['tau_d'], 4)} "
                      f"| {r['tau_d_scenario_id']} | {_fmt(r['gap'], 4)} | {r['units']} |")
-    lines += ["", "## Confusion: true (nearest) model against first decided model", "",
+    lines += ["", "## Confusion: true (nearest) model against first identified fault model", "",
               "| true \\ decided | " + " | ".join(conf.columns) + " |", "|---" * (len(conf.columns) + 1) + "|"]
     for name, row in conf.iterrows():
         lines.append(f"| {name} | " + " | ".join(str(v) for v in row.to_numpy()) + " |")
@@ -235,7 +259,7 @@ def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_
         fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())
         row = {"fdd": label, **{k: overall[k] for k in (
             "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo", "loe_far_hi",
-            "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_rate",
+            "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_accuracy",
             "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
             "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
             "stall_worst_latency_model_s")}, "stall_detector_fires": fires,
@@ -280,7 +304,7 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
         ("FAR (any, incl. eta outside stall)", lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
         ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
         ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
-        ("correct identification", lambda r: _fmt(r["identification_rate"])),
+        ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
         ("detection time median / p95 / max (s)", lambda r: f"{_fmt(r['detection_time_median_s'])} / "
          f"{_fmt(r['detection_time_p95_s'])} / {_fmt(r['detection_time_max_s'])}"),
         ("stall detector above tau outside stall loads (runs)", lambda r: str(r["stall_detector_fires"])),
@@ -295,4 +319,112 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
             for k in ("tau_f", "tau_d", "normalised_gap"))),
     ):
         lines.append(f"| {name} | " + " | ".join(cell(r) for _, r in validation.iterrows()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------------
+# Detectability and stall scoring (``mcfdd campaign``)
+
+
+def _bin_labels(values: pd.Series, edges) -> pd.Series:
+    """``[lo, hi)`` labels of ``values`` in ``edges``; nan (the rod never moved) is :data:`NO_MOTION`."""
+    labels = pd.cut(values, edges, right=False).astype(str)
+    return labels.where(values.notna(), NO_MOTION)
+
+
+def detectability(df: pd.DataFrame) -> pd.DataFrame:
+    """FAR and MDR per fault kind and (dynamic-pressure bin x peak-load-fraction bin), tidy.
+
+    A faulty run counts in the cell of its dynamic pressure and its peak load fraction after the
+    onset; fault-free runs (over their settled run) give the FAR of the same cell, repeated for each
+    fault kind. MDR counts the ``missed`` column of :func:`mcfdd.analysis.metrics.outcomes`. A cell is
+    separable when most of its faulty runs are (fault distance above the uncertainty distance).
+    """
+    cell = ["qbar_kpa_bin", "load_fraction_bin"]
+    df = df[df["status"] == 0].assign(qbar_kpa_bin=_bin_labels(df["qbar_kpa"], QBAR_BINS_KPA),
+                                      load_fraction_bin=_bin_labels(df["peak_load_fraction"], LOAD_FRACTION_BINS))
+    free = df[df["fault_kind"] == "none"]
+    free_cells = dict(tuple(free.groupby(cell)))
+    rows = []
+    for kind in [k for k in ("leakage", "surface_damage", "disconnection") if (df["fault_kind"] == k).any()]:
+        faulty = df[(df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        for key, g in faulty.groupby(cell):
+            mdr = metrics.rate(int(g["missed"].sum()), len(g))
+            sep = g["separable"].to_numpy(dtype=bool)
+            fa = free_cells.get(key, free.iloc[:0])
+            far = metrics.rate(int(fa["false_alarm"].sum()), len(fa))
+            rows.append({
+                "fault_kind": kind, "qbar_kpa_bin": key[0], "load_fraction_bin": key[1],
+                "faulty_runs": mdr["n"], "missed": mdr["k"], "mdr": mdr["rate"], "mdr_lo": mdr["lo"],
+                "mdr_hi": mdr["hi"], "separable_runs": int(sep.sum()), "separable": bool(sep.mean() > 0.5),
+                "missed_separable": int(g["missed"].to_numpy(dtype=bool)[sep].sum()),
+                "fault_distance_median": float(g["fault_distance"].median()),
+                "uncertainty_distance_median": float(g["uncertainty_distance"].median()),
+                "fault_free_runs": far["n"], "false_alarms": far["k"], "far": far["rate"], "far_lo": far["lo"],
+                "far_hi": far["hi"]})
+    det = pd.DataFrame(rows, columns=list(DETECTABILITY_COLUMNS))
+    if det.empty:
+        return det
+    order = det["fault_kind"].map({"leakage": 0, "surface_damage": 1, "disconnection": 2})
+    keys = pd.DataFrame({"kind": order, "qbar": det["qbar_kpa_bin"].map(bin_lower_edge),
+                         "load": det["load_fraction_bin"].map(bin_lower_edge)})
+    return det.loc[keys.sort_values(list(keys.columns)).index].reset_index(drop=True)
+
+
+def bin_lower_edge(label: str) -> float:
+    """Lower edge of a ``[lo, hi)`` label; :data:`NO_MOTION` sorts last."""
+    return float(label[1:].split(",")[0]) if label.startswith("[") else np.inf
+
+
+def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
+    """Section of summary.md: per fault kind, misses where the fault was separable and where it was not."""
+    lines = ["", "## Detectability under the campaign's uncertainty", "",
+             "Distance (16) |k_j - k_i| / (k_i + k_j) on the plant's small-error gains at each run's peak hinge-load "
+             "fraction after the onset (rod moving): fault-free against the true fault, and the largest distance the "
+             "uncertainty ranges of the campaign (Kci, supply pressure, hinge load) create on the fault-free gain. "
+             "A run is separable when the first exceeds the second; a cell when most of its faulty runs are. "
+             "Misses in separable runs are the FDD's; in the others nothing could tell the fault from the "
+             "uncertainty.", ""]
+    ok = df["status"] == 0
+    for kind in det["fault_kind"].unique():
+        g = df[ok & (df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        sep = g["separable"].to_numpy(dtype=bool)
+        missed = g["missed"].to_numpy(dtype=bool)
+        a = metrics.rate(int(missed[sep].sum()), int(sep.sum()))
+        b = metrics.rate(int(missed[~sep].sum()), int((~sep).sum()))
+        lines.append(f"- {kind}: missed {_interval(a['k'], a['n'], a['lo'], a['hi'])} of the separable runs (the FDD "
+                     f"misses what it could see), {_interval(b['k'], b['n'], b['lo'], b['hi'])} of the runs not "
+                     "separable under this uncertainty (nothing could).")
+    if det.empty:
+        return "\n".join(lines + ["No parametric faults in this campaign."]) + "\n"
+    lines += ["", "| fault | qbar (kPa) | peak load fraction | separable | fault / uncertainty distance (median) "
+              "| MDR | missed, separable runs | FAR (fault-free runs) |", "|---|---|---|---|---|---|---|---|"]
+    for _, r in det.iterrows():
+        lines.append(f"| {r['fault_kind']} | {r['qbar_kpa_bin']} | {r['load_fraction_bin']} "
+                     f"| {'yes' if r['separable'] else 'no'} ({r['separable_runs']}/{r['faulty_runs']}) "
+                     f"| {_fmt(r['fault_distance_median'])} / {_fmt(r['uncertainty_distance_median'])} "
+                     f"| {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
+                     f"| {r['missed_separable']}/{r['separable_runs']} "
+                     f"| {_interval(r['false_alarms'], r['fault_free_runs'], r['far_lo'], r['far_hi'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def stall_scoring_markdown(df: pd.DataFrame) -> str:
+    """Section of summary.md: jams taken for stalls (eta = 1 on a jammed rod) and LOE false alarms."""
+    ok = df["status"] == 0
+    jammed = df[ok & (df["fault_kind"] == "jamming")]
+    free = df[ok & (df["fault_kind"] == "none")]
+    loe = metrics.rate(int(free["false_alarm"].sum()), len(free))
+    lines = ["", "## Jams taken for stalls and LOE false alarms", ""]
+    if len(jammed):
+        taken = jammed["jam_taken_for_stall"].to_numpy(dtype=bool)
+        jam = metrics.rate(int(taken.sum()), len(jammed))
+        after = (jammed["jam_taken_for_stall_time_s"] - jammed["fault_onset_s"])[taken]
+        t = metrics.quantiles(after)
+        lines.append(f"- Jammed runs with eta = 1 (either identification method) on the jammed rod: "
+                     f"{_interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}; time after the jam onset median "
+                     f"{_fmt(t['median'])} s, max {_fmt(t['max'])} s.")
+    else:
+        lines.append("- No jammed runs in this campaign.")
+    lines.append(f"- LOE false alarms in fault-free runs: {_interval(loe['k'], loe['n'], loe['lo'], loe['hi'])}.")
     return "\n".join(lines) + "\n"

@@ -97,7 +97,8 @@ def test_interrupted_campaign_resumes_to_the_same_table(reference_run, tmp_path,
 
 def test_outputs_carry_provenance_and_summaries(reference_run):
     _, out = reference_run
-    for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "scenarios/part-00000000.parquet"):
+    for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "detectability.parquet",
+                 "scenarios/part-00000000.parquet"):
         meta = cli.io.read_metadata(out / name)
         assert json.loads(meta["config"])["campaign"]["seed"] == 7
         assert meta["seed"] == "7" and meta["version"] and meta["git_revision"]
@@ -107,7 +108,13 @@ def test_outputs_carry_provenance_and_summaries(reference_run):
     assert overall["runs"] == len(table)
     assert overall["false_alarms"] == int((table["false_alarm"] | table["eta_false_signal"]).sum())
     assert (out / "summary.md").read_text().startswith("# Campaign")
-    for png in ("rates_by_fault.png", "detection_times.png", "confusion.png"):
+    assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
+    assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
+            "separable", "missed", "jam_taken_for_stall", "jam_taken_for_stall_time_s"} <= set(table.columns)
+    det = pd.read_parquet(out / "detectability.parquet")
+    assert det["faulty_runs"].sum() == int((table["fault_kind"].isin(scenarios.PARAMETRIC) & (table["true_model"] > 0)
+                                            & (table["status"] == 0)).sum())
+    for png in ("rates_by_fault.png", "detection_times.png", "confusion.png", "detectability.png"):
         assert (out / png).stat().st_size > 0
 
 
@@ -118,7 +125,7 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
              .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
-             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.1\nexcitation_floor_deg = 0.01\n")
+             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.1\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n")
     path = tmp_path / "harsh.toml"
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)
@@ -139,6 +146,7 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     plant, out = simulate.fdd_batch(model, fdd, scen, keys, c.n_steps, c.dt_s, c.substeps, kinds)
     t = np.arange(c.n_steps) * c.dt_s
     det = np.asarray(out.detected)
+    fault = np.asarray(out.fault_detected)
     stall = np.asarray(plant.stall)
     for i in range(n):
         after_stall = np.full(c.n_steps, np.inf)
@@ -150,16 +158,24 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
         clear = ~stall[i] & (after_stall > settings.stall_grace_s)
         settled = t >= settings.settle_s
         before = t < onset[i]
-        fa = settled & before & clear & (det[i] >= 1)
-        expect_fa = t[fa][0] if fa.any() else np.inf
-        assert float(raw["false_alarm_time_s"][i]) == expect_fa
-        window = (t >= onset[i]) & (t <= onset[i] + settings.t_detec_s) & (det[i] >= 1)
-        assert float(raw["detection_time_s"][i]) == (t[window][0] if window.any() else np.inf)
+        in_window = (t >= onset[i]) & (t <= onset[i] + settings.t_detec_s)
+        for level, hit, pre_key, post_key in ((fault[i], fault[i], "false_alarm_time_s", "detection_time_s"),
+                                              (det[i], det[i] >= 1, "false_identification_time_s",
+                                               "identification_time_s")):
+            fa = settled & before & clear & hit
+            assert float(raw[pre_key][i]) == (t[fa][0] if fa.any() else np.inf)
+            window = in_window & hit
+            assert float(raw[post_key][i]) == (t[window][0] if window.any() else np.inf)
+        window = in_window & (det[i] >= 1)
+        assert int(raw["identified_model"][i]) == (det[i][window][0] if window.any() else -1)
         excited = np.asarray(out.excited[i])
         ratio = np.asarray(out.theta[i]) / np.where(excited, np.asarray(out.theta_u[i]), 1.0)[:, None]
         pre = settled & before & clear & excited
         expect_max = ratio[pre].max(axis=0) if pre.any() else np.full(ratio.shape[1], -np.inf)
         np.testing.assert_allclose(np.asarray(raw["ratio_max_pre"][i]), expect_max, rtol=1e-12)
+        post = in_window & excited
+        np.testing.assert_allclose(float(raw["ratio0_max_post"][i]), ratio[post, 0].max() if post.any() else -np.inf,
+                                   rtol=1e-12)
         quiet = settled & before & clear
         theta_stall = np.asarray(out.theta_stall[i])
         expect_stall = theta_stall[quiet].max() if quiet.any() else -np.inf
@@ -177,8 +193,20 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
                     worst = max(worst, t[start + eta.argmax()] - t[start])
         assert int(raw["stall_events"][i]) == relevant
         np.testing.assert_allclose(float(raw["stall_worst_latency_signal_s"][i]), worst, atol=1e-12)
+        after = t >= (onset[i] if np.isfinite(onset[i]) else settings.settle_s)
+        rate, load = np.abs(np.asarray(plant.rate_m_s[i])), np.asarray(plant.load_fraction[i])
+        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf) for f in (1 + 1e-9, 1 - 1e-9)]
+        assert peaks[0] * (1 - 1e-12) <= float(raw["peak_load_fraction"][i]) <= peaks[1] * (1 + 1e-12), (i, peaks)
+        np.testing.assert_allclose(float(raw["peak_deflection_deg"][i]),
+                                   np.degrees(np.abs(np.asarray(plant.x_m[i])[after]).max() / model.actuator.r_arm_m),
+                                   rtol=1e-12)
+        jam_eta = np.asarray(plant.jammed[i]) & (np.asarray(out.eta_signal[i]) | np.asarray(out.eta_model[i]))
+        assert float(raw["jam_stall_time_s"][i]) == (t[jam_eta][0] if jam_eta.any() else np.inf)
+        jam_onset = float(np.asarray(scen.fault.jam_onset_s)[i])
+        np.testing.assert_array_equal(np.asarray(plant.jammed[i]), t >= jam_onset)
     assert int(np.asarray(raw["stall_events"]).sum()) > 0, "the test space should produce stall loads"
     assert np.isfinite(np.asarray(raw["detection_time_s"])).any(), "the test space should produce detections"
+    assert np.isfinite(np.asarray(raw["identification_time_s"])).any(), "... and identifications"
 
 
 @pytest.mark.parametrize("k,n", [(0, 10), (0, 3000), (3, 40), (40, 40), (17, 123)])

@@ -337,7 +337,8 @@ def test_evaluator_parameters_each_matter():
 
 
 def test_excitation_band_pass_is_zoh_cascade():
-    """excitation_step = ZOH of a/(s+a), then ZOH of s/(s+k0) on the held low-pass, to 1e-12."""
+    """excitation_step = ZOH of k0/(s+k0) (model rod), then ZOH of a/(s+a) on the held error u_c - rod,
+    to 1e-12; in the limit T -> 0 the band-pass a/(s+a) * s/(s+k0)."""
     a, k0, u_c0 = 1.5, 24.0, 0.01
     u_c = u_c0 + np.cumsum(np.random.default_rng(6).normal(0.0, 1e-3, 500))
 
@@ -345,10 +346,53 @@ def test_excitation_band_pass_is_zoh_cascade():
         return decision.excitation_step(state, c, a, k0, DT_S)
 
     out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(u_c0), x)[1])(u_c))
-    low = zoh_response([a], [1.0, a], u_c - u_c0)  # at rest at u_c0: deviations start from zero
-    ref = zoh_response([1.0, 0.0], [1.0, k0], low)
+    rod = u_c0 + zoh_response([k0], [1.0, k0], u_c - u_c0)  # at rest at u_c0: deviations start from zero
+    ref = zoh_response([a], [1.0, a], u_c - rod)
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c)))
     assert np.max(np.abs(ref)) > 0.01 * np.ptp(u_c)
+    # On a smooth command, the continuous band-pass times the lag of the sampled error (the error is
+    # read as a new command is applied, T / (1 - exp(-k0 T)) behind instead of 1/k0), as in the bank's residuals.
+    smooth = smooth_command(500, 0.0)
+    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(0.0), x)[1])(smooth))
+    band = sig.lsim(([a, 0.0], [1.0, a + k0, a * k0]), smooth, np.arange(smooth.size) * DT_S, interp=False)[1]
+    band *= k0 * DT_S / (1.0 - math.exp(-k0 * DT_S))
+    assert np.max(np.abs(out - band)) < 0.02 * np.max(np.abs(band))
+
+
+def test_gated_filters_restart_from_equilibrium(bank):
+    """While evaluation is suspended (here: tracking error beyond the linear range) every residual and
+    the band-pass input are zero and, once the gate reopens, the run equals a fresh start at that
+    sample from the measured position: no transient of the gated interval survives it."""
+    params = FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, linear_range_deg=3.5)).params(
+        bank, r_arm_m=R_ARM_M)
+    n, jump = 600, 100
+    u_c = np.where(np.arange(n) >= jump, 20.0, 0.0) * DEG_M + smooth_command(n, 0.0) * 0.1
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u = [0.0]
+    for c in u_c[:-1]:  # a rod at a saturated rate of 40 deg/s: far from every first-order model
+        u.append(u[-1] + np.clip(c - u[-1], -0.4 * DEG_M, 0.4 * DEG_M))
+    u = np.array(u)
+    gated = np.abs(u_c - u) > 3.5 * DEG_M
+    reopen = int(np.flatnonzero(gated)[-1]) + 1
+    assert gated[jump] and reopen > jump + 10 and gain(u[0], 1.0)[0] > 0
+
+    def run(state, u_c, u, t0):
+        def body(state, inp):
+            c, m, t = inp
+            state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+            return state, (out.r, out.theta, out.theta_u)
+        return jax.lax.scan(body, state, (u_c, u, t0 + np.arange(u_c.size) * DT_S))[1]
+
+    r, theta, theta_u = (np.asarray(x) for x in jax.jit(run)(system.init(params, u[0]), u_c, u, 0.0))
+    assert np.all(r[gated] == 0.0)
+    last = reopen - 1  # the last gated sample: a fresh start there, evaluators holding what they had
+    fresh = system.init(params, u[last])._replace(bank_xi=jnp.asarray(theta[last]),
+                                                  band_xi=jnp.asarray(theta_u[last]))
+    r2, theta2, theta_u2 = (np.asarray(x) for x in jax.jit(run)(fresh, u_c[last:], u[last:], last * DT_S))
+    np.testing.assert_allclose(r[last:], r2, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(theta[last:], theta2, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(theta_u[last:], theta_u2, rtol=0, atol=1e-15)
+    assert np.max(np.abs(r[reopen:])) > 0.0 and np.max(np.abs(r[:jump])) > 0.0
 
 
 @pytest.mark.parametrize("iota, excited, expected", [
@@ -373,6 +417,35 @@ def test_signature_and_threshold_direction():
     assert iota.tolist() == [False, True, False, True]
     assert decision.signature(theta, 2.0, 0.1).tolist() == [False, True, True, True]
     assert decision.threshold(theta, 0.3).tolist() == [False, False, True, True]
+
+
+def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
+    """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
+    the sample's (u, sgn(u_c - u)): the signature of system.step against numpy, and f = 0 is constant tau."""
+    n = 400
+    u_c = smooth_command(n)
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u, _ = lpv_plant(gain, 1, u_c, u_c[0])
+    k0 = np.asarray(bank.k0)
+    for f in (0.0, 1.0):
+        params = FddConfig(loe=LoeDetectionConfig(tau=0.02, tau_schedule=f, max_load_fraction=1.0)).params(
+            bank, r_arm_m=R_ARM_M)
+
+        def body(state, inp):
+            c, m, t = inp
+            state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+            return state, (out.theta, out.theta_u, out.iota)
+
+        theta, theta_u, iota = (np.asarray(x) for x in jax.jit(lambda: jax.lax.scan(
+            body, system.init(params, u[0]), (u_c, u[:-1], np.arange(n) * DT_S))[1])())
+        expect = np.empty_like(iota)
+        for i in range(n):
+            k = gain(u[i], np.sign(u_c[i] - u[i]))
+            d = np.array([[thresholds.hinf_distance(a, b) * (a + b) / k0[ia] if ia != ib else np.inf
+                           for ib, b in enumerate(k)] for ia, a in enumerate(k)])
+            expect[i] = theta[i] >= np.maximum(0.02, f * d.min(axis=1)) * theta_u[i]
+        assert (iota == expect).all()
+        assert f == 0.0 or (iota != (theta >= 0.02 * theta_u[:, None])).any(), "the schedule must change decisions"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -516,7 +589,7 @@ def fdd_on_lpv_model(params, model, u_c):
         phi = jnp.exp(-k * DT_S)
         return (phi * u + (1.0 - phi) * c, state), out.detected
 
-    state0 = system.init(params, u_c[0], u_c[0])
+    state0 = system.init(params, u_c[0])
     return jax.lax.scan(body, (u_c[0], state0), (u_c, t))[1]
 
 
@@ -526,7 +599,7 @@ fdd_on_lpv_model.traces = 0
 def test_system_detects_the_plant_model(bank):
     """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
     1 once excited. A second run with another tau does not recompile."""
-    loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0)
+    loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0, excitation_floor_deg=0.05)  # noise-free
     params = FddConfig(loe=loe).params(bank, r_arm_m=R_ARM_M)
     t = np.arange(1500) * DT_S
     u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)

@@ -4,9 +4,13 @@ Plant and both FDD systems run together in one scan per scenario; the carry hold
 dynamic states, running reductions of what a campaign reports, so memory is O(batch), not
 O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
 
-- LOE model detection: false alarm (a decision for a fault model after the settling time, before
-  any fault and away from stall loads) with its first time and model; detection (first decision
-  for a fault model within [t_f, t_f + t_detec]) with time and model; per filter i the largest
+- LOE, two levels. Detection (the fault-free model rejected, confirmed): false alarm (a
+  detection after the settling time, before any fault and away from stall loads) with its first
+  time; detection time (first detection within [t_f, t_f + t_detec]). Identification (a fault
+  model decoded from the signature, confirmed): the first identified fault model and its time,
+  before any fault (away from stall loads, after settling) and within the detection window; the
+  fault-free filter's largest ratio within the window (its inf over faulty runs is the
+  detection bound of eq. 27 for the detection level); per filter i the largest
   ratio theta_i / ||u|| before the fault and the smallest within the detection window (excited
   samples only, where a decision can be made); the fault-free filter's largest ratio (no false
   alarm is possible while it stays below tau) and, over the detection window, the peak of the
@@ -19,6 +23,10 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
   detector's largest theta outside events before any fault (its false-alarm bound, eq. 26) and,
   per relevant event, the peak theta within ``stall_window_s`` of the onset (its smallest value
   over the run feeds the detection bound, eq. 27, read as "detected within the window").
+- Plant truth for detectability: the largest hinge-load fraction ``|F_aero| / (nu1 dP S)`` while
+  the rod moves (rate at least ``MOVING_RATE_M_S``) and the largest |deflection|, both after the
+  fault onset (for fault-free runs over the settled run).
+- Jams taken for stalls: the first eta = 1 (either identification method) on a jammed rod.
 - flight point: the smallest and largest measured Vcas and altitude of the run (constant on the
   roll axis; the full aircraft's move with its manoeuvre).
 - status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
@@ -39,6 +47,7 @@ from mcfdd.plant import closed_loop
 
 STATUS_OK = 0
 STATUS_NON_FINITE = 1
+MOVING_RATE_M_S = 1e-3  # rod rate (about 1.1 deg/s of surface) above which the rod counts as moving
 
 
 class Settings(NamedTuple):
@@ -62,9 +71,12 @@ class Truth(NamedTuple):
 class Reduction(NamedTuple):
     finite: jnp.ndarray
     fa_time: jnp.ndarray
-    fa_model: jnp.ndarray
     det_time: jnp.ndarray
-    det_model: jnp.ndarray
+    fid_time: jnp.ndarray
+    fid_model: jnp.ndarray
+    id_time: jnp.ndarray
+    id_model: jnp.ndarray
+    ratio0_max_post: jnp.ndarray
     ratio_max_pre: jnp.ndarray
     ratio_min_post: jnp.ndarray
     others_min_peak: jnp.ndarray
@@ -86,6 +98,9 @@ class Reduction(NamedTuple):
     eta_pending_signal: jnp.ndarray
     eta_pending_model: jnp.ndarray
     theta_stall_max_free: jnp.ndarray
+    peak_load_fraction: jnp.ndarray
+    peak_deflection_rad: jnp.ndarray
+    jam_stall_time: jnp.ndarray
     vcas_range: jnp.ndarray  # (min, max), m/s
     altitude_range: jnp.ndarray  # (min, max), m
 
@@ -94,14 +109,17 @@ def reduction_init(n_models: int, dtype) -> Reduction:
     inf = jnp.asarray(jnp.inf, dtype)
     zero_i = jnp.asarray(0, jnp.int32)
     return Reduction(
-        finite=jnp.asarray(True), fa_time=inf, fa_model=jnp.asarray(decision.NO_DECISION, jnp.int32), det_time=inf,
-        det_model=jnp.asarray(decision.NO_DECISION, jnp.int32), ratio_max_pre=jnp.full(n_models, -inf),
+        finite=jnp.asarray(True), fa_time=inf, det_time=inf, fid_time=inf,
+        fid_model=jnp.asarray(decision.NO_DECISION, jnp.int32), id_time=inf,
+        id_model=jnp.asarray(decision.NO_DECISION, jnp.int32), ratio0_max_post=-inf,
+        ratio_max_pre=jnp.full(n_models, -inf),
         ratio_min_post=jnp.full(n_models, inf), others_min_peak=-inf, in_event=jnp.asarray(False),
         event_start=inf, event_max_error=jnp.zeros((), dtype), event_theta_peak=-inf, event_eta_signal=inf,
         event_eta_model=inf, last_stall_end=-inf, n_events=zero_i, n_identified_signal=zero_i,
         n_identified_model=zero_i, worst_latency_signal=-inf, worst_latency_model=-inf, theta_peak_min=inf,
         eta_outside_signal=inf, eta_outside_model=inf, eta_pending_signal=inf, eta_pending_model=inf,
-        theta_stall_max_free=-inf, vcas_range=jnp.stack([inf, -inf]), altitude_range=jnp.stack([inf, -inf]))
+        theta_stall_max_free=-inf, peak_load_fraction=-inf, peak_deflection_rad=-inf, jam_stall_time=inf,
+        vcas_range=jnp.stack([inf, -inf]), altitude_range=jnp.stack([inf, -inf]))
 
 
 def _close_event(s: Settings, red: Reduction, t_end, closing):
@@ -168,22 +186,27 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     settled = t >= s.settle_s
     clear_of_stall = ~stall_now & (t - red.last_stall_end > s.stall_grace_s)
     before_fault = t < truth.onset_s
-    fault_model = fdd.detected >= 1
-    new_fa = settled & before_fault & clear_of_stall & fault_model & ~jnp.isfinite(red.fa_time)
+    quiet = settled & before_fault & clear_of_stall
     in_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s)
-    new_det = in_window & fault_model & ~jnp.isfinite(red.det_time)
+    new_fa = quiet & fdd.fault_detected & ~jnp.isfinite(red.fa_time)
+    new_det = in_window & fdd.fault_detected & ~jnp.isfinite(red.det_time)
+    fault_model = fdd.detected >= 1
+    new_fid = quiet & fault_model & ~jnp.isfinite(red.fid_time)
+    new_id = in_window & fault_model & ~jnp.isfinite(red.id_time)
     ratio = fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0)
-    pre = settled & before_fault & clear_of_stall & fdd.excited
+    pre = quiet & fdd.excited
     post = in_window & fdd.excited
     others_min = jnp.min(jnp.where(truth.accept, jnp.inf, ratio))
-    quiet = settled & before_fault & clear_of_stall
     finite = jnp.isfinite(plant.u_m) & jnp.isfinite(fdd.theta_stall) & jnp.all(jnp.isfinite(fdd.theta))
     return red._replace(
         finite=red.finite & finite,
         fa_time=jnp.where(new_fa, t, red.fa_time),
-        fa_model=jnp.where(new_fa, fdd.detected, red.fa_model),
         det_time=jnp.where(new_det, t, red.det_time),
-        det_model=jnp.where(new_det, fdd.detected, red.det_model),
+        fid_time=jnp.where(new_fid, t, red.fid_time),
+        fid_model=jnp.where(new_fid, fdd.detected, red.fid_model),
+        id_time=jnp.where(new_id, t, red.id_time),
+        id_model=jnp.where(new_id, fdd.detected, red.id_model),
+        ratio0_max_post=jnp.where(post, jnp.maximum(red.ratio0_max_post, ratio[0]), red.ratio0_max_post),
         ratio_max_pre=jnp.where(pre, jnp.maximum(red.ratio_max_pre, ratio), red.ratio_max_pre),
         ratio_min_post=jnp.where(post, jnp.minimum(red.ratio_min_post, ratio), red.ratio_min_post),
         others_min_peak=jnp.where(post, jnp.maximum(red.others_min_peak, others_min), red.others_min_peak),
@@ -191,6 +214,7 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
         **_eta_outside(s, red, "model", settled & clear_of_stall & fdd.eta_model, opening, t),
         theta_stall_max_free=jnp.where(quiet, jnp.maximum(red.theta_stall_max_free, fdd.theta_stall),
                                        red.theta_stall_max_free),
+        **_truth_peaks(s, truth, red, t, plant, fdd),
         vcas_range=_extend(red.vcas_range, plant.vcas_m_s),
         altitude_range=_extend(red.altitude_range, plant.altitude_m),
     )
@@ -201,6 +225,21 @@ def _extend(bounds, value):
     return jnp.stack([jnp.minimum(bounds[0], value), jnp.maximum(bounds[1], value)])
 
 
+def _truth_peaks(s: Settings, truth: Truth, red: Reduction, t, plant: closed_loop.PlantOutputs,
+                 fdd: system.FddOutputs) -> dict:
+    """Peak load fraction (rod moving) and peak |deflection| after the onset; first eta = 1 on a jammed rod."""
+    after = jnp.where(jnp.isfinite(truth.onset_s), t >= truth.onset_s, t >= s.settle_s)
+    moving = after & (jnp.abs(plant.rate_m_s) >= MOVING_RATE_M_S)
+    jam_stall = plant.jammed & (fdd.eta_signal | fdd.eta_model)
+    return {
+        "peak_load_fraction": jnp.where(moving, jnp.maximum(red.peak_load_fraction, plant.load_fraction),
+                                        red.peak_load_fraction),
+        "peak_deflection_rad": jnp.where(after, jnp.maximum(red.peak_deflection_rad, jnp.abs(plant.delta_rad)),
+                                         red.peak_deflection_rad),
+        "jam_stall_time": jnp.where(jam_stall, jnp.minimum(red.jam_stall_time, t), red.jam_stall_time),
+    }
+
+
 def finalize(s: Settings, red: Reduction, t_end) -> dict:
     """Close an event still open at the end of the run; outcomes as a dict of arrays."""
     red = _close_event(s, red, t_end, red.in_event)
@@ -208,8 +247,10 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
                        eta_outside_model=jnp.minimum(red.eta_outside_model, red.eta_pending_model))
     return {
         "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
-        "false_alarm_time_s": red.fa_time, "false_alarm_model": red.fa_model,
-        "detection_time_s": red.det_time, "detected_model": red.det_model,
+        "false_alarm_time_s": red.fa_time, "detection_time_s": red.det_time,
+        "false_identification_time_s": red.fid_time, "false_identification_model": red.fid_model,
+        "identification_time_s": red.id_time, "identified_model": red.id_model,
+        "ratio0_max_post": red.ratio0_max_post,
         "ratio_max_pre": red.ratio_max_pre, "ratio_min_post": red.ratio_min_post,
         "others_min_peak": red.others_min_peak,
         "stall_events": red.n_events, "stall_identified_signal": red.n_identified_signal,
@@ -218,6 +259,8 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
         "eta_outside_signal_time_s": red.eta_outside_signal, "eta_outside_model_time_s": red.eta_outside_model,
         "stall_theta_max_free": red.theta_stall_max_free,
         "stall_seen": jnp.isfinite(red.last_stall_end),
+        "peak_load_fraction": red.peak_load_fraction, "peak_deflection_deg": jnp.degrees(red.peak_deflection_rad),
+        "jam_stall_time_s": red.jam_stall_time,
         "vcas_min_m_s": red.vcas_range[0], "vcas_max_m_s": red.vcas_range[1],
         "altitude_min_m": red.altitude_range[0], "altitude_max_m": red.altitude_range[1],
     }
@@ -229,7 +272,7 @@ def init_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenar
     params = closed_loop.prepare(model, scenario, dt_s)
     plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
     zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = system.init(fdd_params, zero, zero)
+    fdd_state = system.init(fdd_params, zero)
     return params, (plant_state, fdd_state, reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype))
 
 

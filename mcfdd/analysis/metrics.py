@@ -1,13 +1,19 @@
 """FDD performance metrics (DESIGN.md section 5): outcomes per scenario, rates with exact intervals.
 
-- False alarm: a decision for a fault model (or eta = 1) with no fault present and no stall
-  under way, after the settling time. FAR = runs with a false alarm / runs.
-- Detection time: first decision for a fault model after the fault onset; missed detection if
-  none within the detection window [t_f, t_f + t_detec] (cut at the end of the run).
-- Identification: correct if the detected model is the grid model nearest to the true fault or
-  one of the two that bracket it.
+- Two levels: detection (the fault-free model rejected: "an LOE fault is present") and
+  identification (the decoded model of the signature (15)).
+- False alarm: a detection (or eta = 1) with no fault present and no stall under way, after the
+  settling time. FAR = runs with a false alarm / runs.
+- Detection time: first detection after the fault onset; missed detection if none within the
+  detection window [t_f, t_f + t_detec] (cut at the end of the run).
+- Identification: the first fault model identified within the detection window (in fault-free
+  runs: before any fault, a false identification); correct if it is the grid model nearest to
+  the true fault or one of the two that bracket it.
 - Rates carry exact Clopper-Pearson intervals: zero events in n runs only shows a rate below
   about 3/n at 95 %.
+- Detectability: the distance (16) |k_j - k_i| / (k_i + k_j) between the plant's own small-error
+  gains, fault-free against the true fault, at the run's peak load; a run is separable under
+  the campaign's uncertainty when that distance exceeds what the uncertainty alone creates.
 """
 
 from __future__ import annotations
@@ -15,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import betaincinv
 
-from mcfdd.plant.atmosphere import KT_TO_M_S
+from mcfdd.analysis import scenarios
+from mcfdd.plant import atmosphere
 
 
 def clopper_pearson(k, n, confidence: float = 0.95):
@@ -57,11 +64,14 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
     onset = np.asarray(onset_s, dtype=float)
     ok = np.asarray(raw["status"]) == 0
     det_time = np.asarray(raw["detection_time_s"], dtype=float)
-    det_model = np.asarray(raw["detected_model"])
     faulty = np.isfinite(onset)
     detected = ok & faulty & np.isfinite(det_time)
+    id_time = np.where(faulty, np.asarray(raw["identification_time_s"], dtype=float),
+                       np.asarray(raw["false_identification_time_s"], dtype=float))
+    identified = ok & np.isfinite(id_time)
+    id_model = np.where(identified, np.where(faulty, raw["identified_model"], raw["false_identification_model"]), -1)
     rows = np.arange(len(onset))
-    correct = detected & accept[rows, np.clip(det_model, 0, accept.shape[1] - 1)] & (det_model >= 0)
+    correct = identified & faulty & accept[rows, np.clip(id_model, 0, accept.shape[1] - 1)] & (id_model >= 0)
     eta_sig = np.asarray(raw["eta_outside_signal_time_s"], dtype=float)
     eta_mod = np.asarray(raw["eta_outside_model_time_s"], dtype=float)
     before = np.where(faulty, onset, np.inf)
@@ -72,12 +82,14 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "window_s": np.where(faulty, np.minimum(t_detec_s, np.maximum(duration_s - onset, 0.0)), np.nan),
         "false_alarm": ok & np.isfinite(np.asarray(raw["false_alarm_time_s"], dtype=float)),
         "false_alarm_time_s": np.asarray(raw["false_alarm_time_s"], dtype=float),
-        "false_alarm_model": np.asarray(raw["false_alarm_model"]),
         "detected": detected,
         "detection_time_s": np.where(detected, det_time, np.nan),
         "detection_latency_s": np.where(detected, det_time - np.where(faulty, onset, 0.0), np.nan),
-        "detected_model": np.where(detected, det_model, -1),
+        "identified_model": id_model,
+        "identification_time_s": np.where(identified, id_time, np.nan),
+        "identification_latency_s": np.where(identified & faulty, id_time - np.where(faulty, onset, 0.0), np.nan),
         "identified_correctly": correct,
+        "false_identification": identified & ~faulty,
         "stall_events": n_events,
         "stall_seen": np.asarray(raw["stall_seen"]),
         "stall_identified_signal": np.asarray(raw["stall_identified_signal"]),
@@ -92,10 +104,79 @@ def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: 
         "stall_theta_peak_min": _finite_or_nan(raw["stall_theta_peak_min"]),
         "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
         "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
+        "loe_ratio0_max_post": _finite_or_nan(raw["ratio0_max_post"]),
+        "missed": ok & faulty & (np.asarray(nearest) >= 1) & ~detected,
+        "peak_load_fraction": _finite_or_nan(raw["peak_load_fraction"]),
+        "peak_deflection_deg": _finite_or_nan(raw["peak_deflection_deg"]),
+        "jam_taken_for_stall": ok & np.isfinite(np.asarray(raw["jam_stall_time_s"], dtype=float)),
+        "jam_taken_for_stall_time_s": _finite_or_nan(raw["jam_stall_time_s"]),
         **{f"{name}_{end}_{unit}": np.asarray(raw[f"{name}_{end}_{si}"], dtype=float) / scale
-           for name, si, unit, scale in (("vcas", "m_s", "kt", KT_TO_M_S), ("altitude", "m", "m", 1.0))
+           for name, si, unit, scale in (("vcas", "m_s", "kt", atmosphere.KT_TO_M_S), ("altitude", "m", "m", 1.0))
            for end in ("min", "max")},
     }
+
+
+UNCERTAIN_SCALES = ("kci_scale", "supply_pressure_scale", "hinge_scale")
+
+
+def uncertainty_ranges(cols: dict) -> dict:
+    """(lo, hi) of each uncertain scale of :func:`small_error_gain` over a campaign's columns (1 if absent)."""
+    return {k: (float(np.min(cols[k])), float(np.max(cols[k]))) if k in cols else (1.0, 1.0)
+            for k in UNCERTAIN_SCALES}
+
+
+def small_error_gain(load, nu1=1.0, nu2=1.0, kci_scale=1.0, supply_pressure_scale=1.0, hinge_scale=1.0):
+    """Small-error gain of eq. (2) relative to Kci Kp sqrt(dP / dP_ref), for motion against (first
+    row) and with (second row) a hinge load ``load`` given as a fraction of the nominal stall force dP S.
+
+    With e -> 0 the Kd term vanishes: k = Kci Kp sqrt((nu1 dP -+ nu2 F / S) / dP_ref); zero when the
+    load wins (a stall). Broadcasts; returns shape (2, ...).
+    """
+    sign = np.array([1.0, -1.0]).reshape((2,) + (1,) * np.ndim(load))
+    inner = nu1 * supply_pressure_scale - sign * nu2 * hinge_scale * np.asarray(load, dtype=float)
+    return kci_scale * np.sqrt(np.maximum(inner, 0.0))
+
+
+def gain_distance(k_i, k_j):
+    """Distance (16) of first-order models, |k_j - k_i| / (k_i + k_j); 0 where both gains are 0."""
+    total = k_i + k_j
+    return np.where(total > 0, np.abs(k_j - k_i) / np.where(total > 0, total, 1.0), 0.0)
+
+
+def separability(peak_load_fraction, nu1, nu2, supply_pressure_scale, ranges: dict) -> dict:
+    """Per run: distance (16) of fault-free against the true fault and of the uncertainty alone.
+
+    Both on the plant's small-error gains at the run's peak load (``peak_load_fraction`` of
+    nu1 dP S, with the run's supply pressure), the larger of the two motion directions. The
+    uncertainty distance is the largest over the corners of ``ranges`` (:func:`uncertainty_ranges`;
+    the gain is monotonic in each scale) between the nominal fault-free gain and the perturbed one.
+    Runs without a peak load (nan) get nan distances and are not separable.
+    """
+    load = np.asarray(peak_load_fraction, dtype=float) * np.asarray(nu1) * np.asarray(supply_pressure_scale)
+    nominal = small_error_gain(load)
+    fault = gain_distance(nominal, small_error_gain(load, nu1, nu2)).max(axis=0)
+    corners = np.array(np.meshgrid(*(ranges[k] for k in UNCERTAIN_SCALES), indexing="ij")).reshape(3, -1).T
+    noise = np.max([gain_distance(nominal, small_error_gain(load, kci_scale=c[0], supply_pressure_scale=c[1],
+                                                             hinge_scale=c[2])).max(axis=0) for c in corners], axis=0)
+    known = np.isfinite(load)
+    fault, noise = np.where(known, fault, np.nan), np.where(known, noise, np.nan)
+    return {"fault_distance": fault, "uncertainty_distance": noise, "separable": known & (fault > noise)}
+
+
+def detectability_columns(cols: dict, peak_load_fraction, ranges: dict) -> dict:
+    """Dynamic pressure (kPa) and :func:`separability` of scenarios given by their table columns."""
+    n = len(peak_load_fraction)
+    defaults = scenarios.DEFAULTS
+    kind = np.asarray(cols.get("fault_kind", np.full(n, defaults["fault_kind"])))
+    nu1, nu2 = scenarios.fault_nu(kind, cols.get("fault_size", np.zeros(n)))
+    vcas = np.asarray(cols.get("vcas_kt", np.full(n, defaults["vcas_kt"])), dtype=float) * atmosphere.KT_TO_M_S
+    altitude = np.asarray(cols.get("altitude_m", np.full(n, defaults["altitude_m"])), dtype=float)
+    supply = np.asarray(cols.get("supply_pressure_scale", np.ones(n)), dtype=float)
+    sep = separability(peak_load_fraction, nu1, nu2, supply, ranges)
+    faulty = np.isin(kind, scenarios.PARAMETRIC)
+    return {"qbar_kpa": np.asarray(atmosphere.dynamic_pressure(vcas, altitude), dtype=float) / 1e3,
+            "fault_distance": np.where(faulty, sep["fault_distance"], np.nan),
+            "uncertainty_distance": sep["uncertainty_distance"], "separable": faulty & sep["separable"]}
 
 
 def _finite_or_nan(values):

@@ -70,7 +70,7 @@ def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, sce
     params = closed_loop.prepare(model, scenario, dt_s)
     plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
     zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = system.init(fdd_params, zero, zero)
+    fdd_state = system.init(fdd_params, zero)
 
     def body(carry, k, noise):
         plant_state, fdd_state = carry

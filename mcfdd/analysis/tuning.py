@@ -121,7 +121,7 @@ def fdd_run(fdd_params: system.FddParams, settings: campaign.Settings, plant: cl
     """The FDD over one stored history (leaves (T,)). Returns (smooth bounds dict, campaign outcomes)."""
     n_steps = plant.u_m.shape[0]
     zero = jnp.zeros_like(plant.u_m[0])
-    carry = (system.init(fdd_params, zero, zero), campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype),
+    carry = (system.init(fdd_params, zero), campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype),
              worst_case.soft_init(zero.dtype))
 
     @jax.checkpoint
@@ -190,8 +190,9 @@ def evaluate(fdd_params, settings, data: TrainingSet, temperature, dt_s: float, 
 def threshold_scan(fdd_params, settings, data: TrainingSet, taus, dt_s: float, detector: str, identification: str):
     """False alarms (runs) and missed detections for each candidate threshold (K,), one jit.
 
-    Definitions of the campaign (DESIGN.md section 5): LOE bank, a fault-model decision before
-    the fault and a parametric fault without a fault-model decision in the window; stall
+    Definitions of the campaign (DESIGN.md section 5): LOE bank (its threshold tau is the
+    signature's, so the identification level), a fault model identified before the fault and a
+    parametric fault without a fault model identified in the window; stall
     detector, eta = 1 of the ``identification`` method ('signal' or 'model') outside stall loads
     and a relevant stall event not identified within ``stall_window_s``. Returns (runs with a false
     alarm (K,), runs with a miss (K,)).
@@ -203,8 +204,8 @@ def threshold_scan(fdd_params, settings, data: TrainingSet, taus, dt_s: float, d
         out = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
         ok = out["status"] == campaign.STATUS_OK
         if detector == "loe":
-            false = ok & jnp.isfinite(out["false_alarm_time_s"])
-            missed = ok & data.counts & ~jnp.isfinite(out["detection_time_s"])
+            false = ok & jnp.isfinite(out["false_identification_time_s"])
+            missed = ok & data.counts & ~jnp.isfinite(out["identification_time_s"])
         else:
             false = ok & (out[f"eta_outside_{identification}_time_s"] < data.truth.onset_s)
             late = out[f"stall_worst_latency_{identification}_s"] > settings.stall_window_s

@@ -19,19 +19,28 @@ import jax.numpy as jnp
 NO_DECISION = -1
 
 
-def excitation_init(u_c0):
-    """State of the band-pass (a/(s+a) then s/(s+k0)) for a start at rest at u_c0."""
-    u_c0 = jnp.asarray(u_c0)
-    return jnp.stack([u_c0, u_c0])
+def excitation_init(u0):
+    """State of the band-pass in equilibrium with the measured position u0: (model rod, output) = (u0, 0).
+
+    Also the restart of the band-pass while residual evaluation is suspended (see
+    :func:`mcfdd.fdd.system.step`), so that it leaves no transient of a gated interval behind.
+    """
+    u0 = jnp.asarray(u0)
+    return jnp.stack([u0, jnp.zeros_like(u0)])
 
 
 def excitation_step(state, u_c, a, k0, dt_s: float):
-    """Band-passed command, exact for u_c held over the sample. Returns (new state, output)."""
-    low, slow = state[0], state[1]
+    """Band-passed command ``a/(s+a) * s/(s+k0) u_c``. Returns (new state, output).
+
+    Realised as the tracking error ``u_c - m`` of a first-order model rod ``m' = k0 (u_c - m)``
+    (exact for u_c held over the sample), low-passed by ``a/(s+a)`` (exact for the error held):
+    the same signal, ``a/(s+a) (u_c - u)`` on a plant of gain k0, that drives every residual of
+    the bank, so a restart with ``m = u`` matches a restart of the bank's filters.
+    """
+    model, out = state[0], state[1]
     phi_a = jnp.exp(-a * dt_s)
     phi_0 = jnp.exp(-k0 * dt_s)
-    out = low - slow
-    return jnp.stack([phi_a * low + (1.0 - phi_a) * u_c, phi_0 * slow + (1.0 - phi_0) * low]), out
+    return jnp.stack([phi_0 * model + (1.0 - phi_0) * u_c, phi_a * out + (1.0 - phi_a) * (u_c - model)]), out
 
 
 def signature(theta, theta_u, tau):

@@ -7,10 +7,19 @@
   bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
   no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction`` and the tracking
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
-  which no first-order model follows). While a stall
+  which no first-order model follows). While evaluation is suspended the bank's filters and the
+  excitation band-pass restart at every sample from equilibrium with the measured position
+  (residual 0, ||u|| input 0), so no filter carries a transient of the gated interval out of it:
+  after the gate reopens, every residual and ||u|| are driven by the same measured tracking
+  error from zero. While a stall
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
+- Two levels of output, as an FDD engineer reads them: detection (``fault_detected``: the
+  fault-free model rejected, theta_0 / ||u|| >= ``detection_tau`` while excited, without
+  interruption for ``detection_confirm_s``: "an LOE fault is present") and identification
+  (``detected``: the decoded signature (15), confirmed over ``confirm_s``). Thresholds of the
+  signature are constant or scheduled online on eq. (16) at the current scheduling point.
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
   evaluator and decision (25), and both identification methods of Section 5.4.
 
@@ -24,7 +33,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.fdd import decision, evaluator, lpv, residual, stall
+from mcfdd.fdd import decision, evaluator, lpv, residual, stall, thresholds
 
 
 class LoeParams(NamedTuple):
@@ -32,6 +41,9 @@ class LoeParams(NamedTuple):
     pole: float  # a of the bank's filters and of the excitation band-pass (1/s)
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
+    tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
+    detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
+    detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
     excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
@@ -58,6 +70,7 @@ class FddState(NamedTuple):
     band: jnp.ndarray
     band_xi: jnp.ndarray
     confirm: tuple
+    detect: tuple
     since_stall: jnp.ndarray
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
@@ -73,7 +86,8 @@ class FddOutputs(NamedTuple):
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
     iota: jnp.ndarray  # (N,) signature
     decoded: jnp.ndarray  # model id of the signature, -1 for none
-    detected: jnp.ndarray  # confirmed model id, -1 for no decision
+    detected: jnp.ndarray  # identification: confirmed model id, -1 for no decision
+    fault_detected: jnp.ndarray  # detection: the fault-free model rejected, confirmed (an LOE fault is present)
     r_stall: jnp.ndarray
     theta_stall: jnp.ndarray
     iota_stall: jnp.ndarray
@@ -94,17 +108,18 @@ def load_fraction(bank: lpv.GainBank, k):
     return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
-def init(params: FddParams, u0, u_c0) -> FddState:
-    """State for a start at rest at measured position u0 and command u_c0."""
+def init(params: FddParams, u0) -> FddState:
+    """State for a start at rest (in equilibrium) at measured position u0."""
     n = params.loe.bank.k0.shape[0]
     u0 = jnp.asarray(u0)
     bank_xq = jnp.broadcast_to(residual.init(u0), (n,))
     return FddState(
         bank_xq=bank_xq,
         bank_xi=jnp.zeros_like(bank_xq),
-        band=decision.excitation_init(u_c0),
+        band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
+        detect=decision.confirm_init(),
         since_stall=jnp.asarray(jnp.inf, u0.dtype),
         stall_xq=residual.init(u0),
         stall_xi=jnp.zeros_like(u0),
@@ -120,13 +135,16 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     direction = jnp.sign(u_c - u)
     k = lpv.gains(bank, u, direction, vcas_m_s, altitude_m)
 
-    bank_xq, r = residual.step(state.bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
     load = load_fraction(bank, k)
     valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
-    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, jnp.where(valid, r, 0.0), dt_s)
-    band, bp = decision.excitation_step(state.band, u_c, loe.pole, bank.k0[0], dt_s)
-    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, jnp.where(valid, bp, 0.0), dt_s)
-    iota = decision.signature(theta, theta_u, loe.tau)
+    bank_xq = jnp.where(valid, state.bank_xq, residual.init(u))
+    bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
+    bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
+    band = jnp.where(valid, state.band, decision.excitation_init(u))
+    band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
+    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
+    tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
+    iota = decision.signature(theta, theta_u, tau)
     excited = theta_u >= loe.excitation_floor
     stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
     stall_xi, theta_stall = evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s)
@@ -138,7 +156,10 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_aware = since_stall <= loe.stall_hold_s
     decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
+    rejected = excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
+    detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
+                                          loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, since_stall, stall_xq, stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, r_stall, theta_stall,
-                           iota_stall, eta_signal, eta_model, theta_sl)
+    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, detect, since_stall, stall_xq, stall_xi, signal, model)
+    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, fault == 1, r_stall,
+                           theta_stall, iota_stall, eta_signal, eta_model, theta_sl)

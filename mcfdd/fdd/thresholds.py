@@ -8,6 +8,10 @@ peaks at ``w = sqrt(k_i k_j)`` with
 Eq. (16) takes, for filter i, the infimum of this distance over the other models and over the
 scheduling parameters; the bank's gains are evaluated on a grid of the envelope (Vcas, h),
 deflection and both motion directions, all at once.
+
+Scheduled thresholds: the same distance evaluated online at the current scheduling point, in the
+units of the bank's decision theta_i / ||u|| (filter i on model j gives a ratio of about
+``|k_j - k_i| / k0_i``, i.e. the distance times ``(k_i + k_j) / k0_i``).
 """
 
 from __future__ import annotations
@@ -60,3 +64,14 @@ def thresholds(min_distances):
     """tau_i of eq. (16): the smallest distance from model i to any other model, (N,)."""
     n = min_distances.shape[0]
     return jnp.min(jnp.where(jnp.eye(n, dtype=bool), jnp.inf, min_distances), axis=1)
+
+
+def nearest_ratio(k, k0):
+    """Distance (16) of each model to its nearest other model at one scheduling point, in ratio units.
+
+    ``k`` (N,) are the models' gains at the current point, ``k0`` (N,) their nominal gains; returns
+    (N,) ``min_{j != i} |k_j - k_i| / k0_i``, the ratio theta_i / ||u|| filter i shows on model j.
+    """
+    n = k.shape[0]
+    gap = jnp.where(jnp.eye(n, dtype=bool), jnp.inf, jnp.abs(k[None, :] - k[:, None]))
+    return jnp.min(gap, axis=1) / k0

@@ -14,9 +14,15 @@ gain, ``xdot = k (u_c - x)`` with
 
     k = Kci Kp s sqrt(A / (dP_ref (1 + g Kd / S))),   s = min(1, i_max / (Kp |e|)),
 
-and each sub-step integrates ``xdot = k (u_c - x)`` exactly for the gain frozen over the
-sub-step, ``x+ = u_c - e exp(-k h)``: it never overshoots the command and holds still in a stall.
-The hinge load is read from the table once per sample; sub-steps follow the line of the table
+With u_c held over a sample the ODE is piecewise smooth. At full valve current (``|e| >= i_max /
+Kp``) the rate ``w = sqrt(g A / (1 + g Kd / S))`` changes at a constant rate along a linear load
+line, so that part of the sample is integrated exactly (:func:`_saturated_travel`), up to the edge
+of the linear range, a stall, or the end of the sample. The rest of the sample is cut into
+sub-steps, each integrating ``xdot = k (u_c - x)`` exactly for the gain frozen over the sub-step,
+``x+ = u_c - e exp(-k h)``; there k varies only through the Kd term and the load (a few percent
+over the linear range), so the error of this part is small and first order in h. Neither part
+overshoots the command, and the rod holds still in a stall.
+The hinge load is read from the table once per sample; the sample follows the line of the table
 cell the rod started in (exact for a piecewise-linear table while the rod stays in that cell, and
 the rod moves less than a cell in a sample).
 Faults step in at their onset times: leakage (nu1 < 1), surface damage or disconnection (nu2 < 1,
@@ -64,7 +70,8 @@ class ActuatorState(NamedTuple):
 
 
 class ActuatorOutputs(NamedTuple):
-    """Signals at the start of a step: rod position, available pressure, stall flag, active nu."""
+    """Signals at the start of a step: rod position and rate, available pressure, stall flag, active
+    nu, the hinge load as a fraction of the stall force ``|F_aero| / (nu1 dP S)`` and the jam flag."""
 
     x_m: jnp.ndarray
     rate_m_s: jnp.ndarray
@@ -72,6 +79,8 @@ class ActuatorOutputs(NamedTuple):
     stall: jnp.ndarray
     nu1: jnp.ndarray
     nu2: jnp.ndarray
+    load_fraction: jnp.ndarray
+    jammed: jnp.ndarray
 
 
 def _safe_sqrt(value):
@@ -106,6 +115,31 @@ def rate(params: ActuatorParams, nu1, nu2, load_n, x_m, u_c_m):
     return k * (u_c_m - x_m)
 
 
+def _saturated_travel(params: ActuatorParams, nu2, slope_n_rad, w0, e0_abs, dt_s):
+    """Time (s), distance (m) and final rate (m/s) of the rod's travel at full valve current in one sample.
+
+    At full current ``g`` is constant, and along the travel z >= 0 the table line gives
+    ``A(z) = A0 + q z`` with ``q = -nu2 slope / (r_arm S)`` whatever the direction, so the rate
+    ``w = sqrt(beta A)``, ``beta = g / (1 + g Kd / S)``, changes at the constant rate
+    ``dw/dt = beta q / 2``: ``z(t) = w0 t + c t^2`` with ``c = beta q / 4``, exactly. The travel
+    ends at the edge of the linear range (``|e| = i_max / Kp``), where the rate falls to zero
+    (a stall load, when ``c < 0``) or at the end of the sample, whichever comes first.
+    """
+    g = (params.kci_m_s_a * params.max_current_a) ** 2 / params.ref_pressure_pa
+    beta = g / (1.0 + g * params.kd_n_s2_m2 / params.piston_area_m2)
+    c = -beta * nu2 * slope_n_rad / (4.0 * params.r_arm_m * params.piston_area_m2)
+    d = e0_abs - params.max_current_a / params.kp_a_m
+    moving = (d > 0.0) & (w0 > 0.0)
+    disc = w0 * w0 + 4.0 * c * d
+    reaches = moving & (disc >= 0.0)
+    t_edge = jnp.where(reaches, 2.0 * d / jnp.where(reaches, w0 + _safe_sqrt(disc), 1.0), jnp.inf)
+    decelerating = moving & (c < 0.0)
+    t_stop = jnp.where(decelerating, -w0 / jnp.where(decelerating, 2.0 * c, -1.0), jnp.inf)
+    t_sat = jnp.where(moving, jnp.minimum(jnp.minimum(t_edge, t_stop), dt_s), 0.0)
+    travel = jnp.minimum(w0 * t_sat + c * t_sat * t_sat, jnp.maximum(d, 0.0))
+    return t_sat, travel, jnp.maximum(w0 + 2.0 * c * t_sat, 0.0)
+
+
 def init(params: ActuatorParams, x0_m=0.0) -> ActuatorState:
     return ActuatorState(jnp.asarray(x0_m))
 
@@ -127,18 +161,23 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
     nu1, nu2 = active_nu(fault, t_s)
     jammed = t_s >= fault.jam_onset_s
     x_max = params.r_arm_m * params.max_deflection_rad
-    h = dt_s / substeps
 
     x0 = state.x_m
     load0, slope = hinge.local_line(delta_grid_rad, load_slice_n, x0 / params.r_arm_m)
     k0, a0 = gain(params, nu1, nu2, load0, x0, u_c_m)
-    x1, k = x0, k0
+    e0 = u_c_m - x0
+    t_sat, travel, rate_end = _saturated_travel(params, nu2, slope, k0 * jnp.abs(e0), jnp.abs(e0), dt_s)
+    saturated = t_sat > 0.0
+    e1_abs = jnp.abs(e0) - travel
+    x1 = x0 + jnp.sign(e0) * travel
+    k = jnp.where(saturated, rate_end / jnp.where(saturated, e1_abs, 1.0), k0)
+    h = (dt_s - t_sat) / substeps
     for i in range(substeps):
         if i:
             load = load0 + slope * (x1 - x0) / params.r_arm_m
             k, _ = gain(params, nu1, nu2, load, x1, u_c_m)
-        x_new = u_c_m - (u_c_m - x1) * jnp.exp(-k * h)
-        x1 = jnp.clip(jnp.where(jammed, x1, x_new), -x_max, x_max)
+        x1 = u_c_m - (u_c_m - x1) * jnp.exp(-k * h)
+    x1 = jnp.clip(jnp.where(jammed, x0, x1), -x_max, x_max)
     outputs = ActuatorOutputs(
         x_m=x0,
         rate_m_s=jnp.where(jammed, 0.0, k0 * (u_c_m - x0)),
@@ -146,5 +185,7 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
         stall=(a0 <= STALL_MARGIN * params.supply_pressure_pa) & ~jammed,
         nu1=nu1,
         nu2=nu2,
+        load_fraction=jnp.abs(load0) / (nu1 * params.supply_pressure_pa * params.piston_area_m2),
+        jammed=jammed,
     )
     return ActuatorState(x1), outputs

@@ -148,7 +148,7 @@ def init(params: RunParams, noise3) -> PlantState:
                       turbulence.init(params.turbulence, noise3))
 
 
-def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 4,
+def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 2,
          kinds: tuple[int, ...] = tuple(range(len(manoeuvres.KINDS)))):
     """One sample of the closed loop. ``noise`` holds NOISE_DIM standard normals.
 
@@ -167,13 +167,18 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
     u_c = delta_c * act.r_arm_m
     act_state, out = actuator.step(act, params.fault, params.delta_grid_rad, params.load_slice_n,
                                    state.actuator, u_c, t_s, dt_s, substeps)
-    delta_eff = aircraft.effective_aileron(params.aircraft, out.x_m / act.r_arm_m, delta_c, out.nu2)
+    delta = out.x_m / act.r_arm_m
+    delta_eff = aircraft.effective_aileron(params.aircraft, delta, delta_c, out.nu2)
     roll = aircraft.step(params.aircraft, state.roll, delta_eff, pilot.sideslip_rad, p_gust, v_gust,
                          params.qbar_pa, params.tas_m_s, params.roll_inertia_kg_m2, dt_s)
     outputs = PlantOutputs(
         u_c_m=u_c,
         u_m=out.x_m + params.noise_std_m * noise[3],
         x_m=out.x_m,
+        delta_rad=delta,
+        rate_m_s=out.rate_m_s,
+        load_fraction=out.load_fraction,
+        jammed=out.jammed,
         dp_avail_norm=out.dp_avail_norm,
         stall=out.stall,
         p_rad_s=state.roll.p_rad_s,

@@ -162,7 +162,8 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     load = (hinge.flight_point_slice(params.table, vcas, b.altitude) + alpha_load / act.r_arm_m) * params.hinge_scale
     act_state, out = actuator.step(act, params.fault, params.table.delta_rad, load, state.actuator, u_c, t_s, dt_s,
                                    substeps)
-    aileron = aircraft.effective_aileron(params.aircraft, out.x_m / act.r_arm_m, state.aileron, out.nu2)
+    delta = out.x_m / act.r_arm_m
+    aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, out.nu2)
     controls = rcam.RcamControls(aileron, state.stabiliser, state.rudder, state.throttle1, state.throttle2)
     body, rates = rcam.step(params.rcam, b, controls, density, dt_s, v_gust, p_gust)
 
@@ -170,7 +171,8 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     g = params.rcam.gravity_m_s2
     nz = -(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g
     outputs = RcamOutputs(
-        u_c_m=u_c, u_m=out.x_m + params.noise_std_m * noise[3], x_m=out.x_m, dp_avail_norm=out.dp_avail_norm,
+        u_c_m=u_c, u_m=out.x_m + params.noise_std_m * noise[3], x_m=out.x_m, delta_rad=delta,
+        rate_m_s=out.rate_m_s, load_fraction=out.load_fraction, jammed=out.jammed, dp_avail_norm=out.dp_avail_norm,
         stall=out.stall, p_rad_s=b.p, phi_rad=b.phi, stick=pilot.stick, nu1=out.nu1, nu2=out.nu2, vcas_m_s=vcas,
         altitude_m=b.altitude, alpha_rad=air.alpha, beta_rad=air.beta, theta_rad=b.theta, q_rad_s=b.q, r_rad_s=b.r,
         psi_rad=b.psi, nz_g=nz)

@@ -8,15 +8,21 @@ import jax.numpy as jnp
 
 
 class PlantOutputs(NamedTuple):
-    """Signals at the start of a step (time t). Rod positions in m, angles in rad.
+    """Signals at the start of a step (time t). Rod positions in m, rates in m/s, angles in rad.
 
-    The measured Vcas (m/s) and altitude (m) are the flight point the FDD schedules on (constant
-    on the roll axis).
+    ``delta_rad`` (surface deflection), ``rate_m_s``, ``load_fraction`` (hinge load over the stall
+    force nu1 dP S) and ``jammed`` are the plant's truth, for scoring only (the FDD sees u_c, u and
+    the flight point). The measured Vcas (m/s) and altitude (m) are the flight point the FDD
+    schedules on (constant on the roll axis).
     """
 
     u_c_m: jnp.ndarray
     u_m: jnp.ndarray
     x_m: jnp.ndarray
+    delta_rad: jnp.ndarray
+    rate_m_s: jnp.ndarray
+    load_fraction: jnp.ndarray
+    jammed: jnp.ndarray
     dp_avail_norm: jnp.ndarray
     stall: jnp.ndarray
     p_rad_s: jnp.ndarray
