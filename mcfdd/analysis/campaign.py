@@ -19,11 +19,12 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
   detector's largest theta outside events before any fault (its false-alarm bound, eq. 26) and,
   per relevant event, the peak theta within ``stall_window_s`` of the onset (its smallest value
   over the run feeds the detection bound, eq. 27, read as "detected within the window").
-- status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
+- status: a :class:`Status` code (0 ok, 1 if any monitored signal went non-finite: outcomes void).
 """
 
 from __future__ import annotations
 
+import enum
 from functools import partial
 from typing import NamedTuple
 
@@ -36,8 +37,17 @@ from mcfdd.analysis.simulate import scan_steps
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
-STATUS_OK = 0
-STATUS_NON_FINITE = 1
+class Status(enum.IntEnum):
+    """Scenario status code, the ``status`` column of a campaign table; ``.meaning`` says what it means."""
+
+    OK = 0, "the run's numbers stayed finite; its outcomes count"
+    NON_FINITE = 1, "a monitored signal went non-finite; the run's outcomes are void and not counted"
+
+    def __new__(cls, code: int, meaning: str):
+        member = int.__new__(cls, code)
+        member._value_ = code
+        member.meaning = meaning
+        return member
 
 
 class Settings(NamedTuple):
@@ -197,7 +207,7 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
     red = red._replace(eta_outside_signal=jnp.minimum(red.eta_outside_signal, red.eta_pending_signal),
                        eta_outside_model=jnp.minimum(red.eta_outside_model, red.eta_pending_model))
     return {
-        "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
+        "status": jnp.where(red.finite, int(Status.OK), int(Status.NON_FINITE)).astype(jnp.int32),
         "false_alarm_time_s": red.fa_time, "false_alarm_model": red.fa_model,
         "detection_time_s": red.det_time, "detected_model": red.det_model,
         "ratio_max_pre": red.ratio_max_pre, "ratio_min_post": red.ratio_min_post,
