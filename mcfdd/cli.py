@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import math
 import sys
+import tomllib
 from pathlib import Path
 
 import mcfdd
@@ -30,9 +31,23 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _settings(pairs) -> dict:
+    """``--set KEY=VALUE`` flags as dotted-path overrides; VALUE is read as TOML (a bare word as a string)."""
+    overrides = {}
+    for pair in pairs or ():
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise config.ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.tau=0.12")
+        try:
+            overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError:
+            overrides[key.strip()] = text
+    return overrides
+
+
 def _campaign_config(args) -> config.CampaignConfig:
     """The campaign config with the flags' overrides and ``--fdd`` fragment; bad flags are named."""
-    overrides = {}
+    overrides = _settings(getattr(args, "set", None))
     for flag, low in (("scenarios", 1), ("seed", 0), ("chunk_size", 1)):
         value = getattr(args, flag)
         if value is not None:
@@ -152,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a config key by its dotted path, e.g. --set fdd.loe.tau=0.12 (repeatable)")
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
     p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,

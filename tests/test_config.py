@@ -129,18 +129,16 @@ def test_shipped_configs_parse(name):
 def simulated(tmp_path_factory):
     """``mcfdd simulate`` of fig3 and fig5, in-process: {name: (output folder, parsed config)}.
 
-    ``main`` sets jax_enable_x64 from the config's precision (float32 here); the flag is restored
-    for the other tests.
+    The command computes at the config's precision (float32 here) and leaves the caller's
+    jax_enable_x64 as it was.
     """
     x64 = jax.config.jax_enable_x64
     runs = {}
-    try:
-        for name in ("fig3", "fig5"):
-            out = tmp_path_factory.mktemp(name)
-            assert cli.main(["simulate", str(CONFIGS / f"{name}.toml"), "--out", str(out)]) == 0
-            runs[name] = out, config.load(config.SimulateConfig, CONFIGS / f"{name}.toml")
-    finally:
-        jax.config.update("jax_enable_x64", x64)
+    for name in ("fig3", "fig5"):
+        out = tmp_path_factory.mktemp(name)
+        assert cli.main(["simulate", str(CONFIGS / f"{name}.toml"), "--out", str(out)]) == 0
+        runs[name] = out, config.load(config.SimulateConfig, CONFIGS / f"{name}.toml")
+    assert jax.config.jax_enable_x64 == x64
     return runs
 
 
