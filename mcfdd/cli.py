@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 
 
 def _set_precision(precision: str):
@@ -58,9 +59,9 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     from mcfdd.plant import closed_loop
 
     dtype = _dtype(sim.precision)
-    model = plant_cfg.model()
+    model = build.plant_model(plant_cfg)
     bank, names = _load_bank(fdd_cfg, dtype)
-    fdd_params = fdd_cfg.params(bank, model.actuator.r_arm_m)
+    fdd_params = build.fdd_params(fdd_cfg, bank, model.actuator.r_arm_m)
     scenarios = to_scenario(table, dtype)
     kinds = batch.kinds_in(scenarios.manoeuvre.kind)
     keys = simulate.run_keys(sim.seed, range(len(run_names)))
@@ -97,7 +98,7 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
 
 
 def _runs_table(runs) -> dict:
-    rows = [run.columns() for run in runs]
+    rows = [build.run_columns(run) for run in runs]
     return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
 
@@ -145,8 +146,6 @@ LANE_BLOCK = 64
 
 
 def _campaign_config(args) -> config.CampaignConfig:
-    import dataclasses
-
     cfg = config.load(config.CampaignConfig, args.config)
     overrides = {}
     for flag, key in (("scenarios", "scenarios"), ("seed", "seed"), ("chunk_size", "chunk_size")):
@@ -155,9 +154,10 @@ def _campaign_config(args) -> config.CampaignConfig:
             if value < (0 if key == "seed" else 1):
                 raise config.ConfigError(f"--{flag.replace('_', '-')}: {value} is not allowed; expected "
                                          f"{'a non-negative' if key == 'seed' else 'a positive'} integer")
-            overrides[key] = value
-    fdd = config.load_fdd_fragment(args.fdd) if getattr(args, "fdd", None) else cfg.fdd
-    return dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, **overrides), fdd=fdd)
+            overrides[f"campaign.{key}"] = value
+    if getattr(args, "fdd", None):
+        overrides["fdd"] = config.to_dict(config.load_fdd_fragment(args.fdd))
+    return config.replace(cfg, overrides)
 
 
 def _resolved(cfg: config.CampaignConfig) -> dict:
@@ -206,15 +206,15 @@ def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
     from mcfdd.analysis import batch, scenarios
 
     dtype = _dtype(cfg.campaign.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     bank, names = _load_bank(cfg.fdd, dtype)
-    cols, n = cfg.design()
+    cols, n = build.design(cfg)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
     nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind,
                                            np.asarray(cols.get("fault_size", np.zeros(n))))
     all_scenarios = scenarios.to_scenario(cols, dtype)
-    return CampaignSetup(model, names, cfg.fdd.params(bank, model.actuator.r_arm_m),
-                         cfg.evaluation.settings(model.actuator.r_arm_m), cols, n,
+    return CampaignSetup(model, names, build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m),
+                         build.settings(cfg.evaluation, model.actuator.r_arm_m), cols, n,
                          scenarios.fault_onsets(cols, n), nearest, accept, all_scenarios,
                          batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
 
@@ -328,16 +328,16 @@ def cmd_fit_lpv(args) -> int:
 
     out = Path(args.out) if args.out else io.default_out_dir("fit-lpv", args.config)
     dtype = _dtype(cfg.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     runs, opt, max_mach = cfg.runs, cfg.optimiser, cfg.plant.aircraft.max_mach
-    nus, names = cfg.nus(), [m.name for m in cfg.models]
+    nus, names = build.lpv_nus(cfg), [m.name for m in cfg.models]
     r_arm = model.actuator.r_arm_m
-    points = {"training": cfg.envelope.training_points(max_mach),
-              "validation": cfg.envelope.validation_flight_points(max_mach, cfg.seed)}
+    points = {"training": build.lpv_training_points(cfg.envelope, max_mach),
+              "validation": build.lpv_validation_points(cfg.envelope, max_mach, cfg.seed)}
     commands, problems = {}, {}
     start = time.perf_counter()
     for split, (v, h) in points.items():
-        commands[split] = cfg.manoeuvre_params(split, dtype)
+        commands[split] = build.lpv_manoeuvre_params(cfg, split, dtype)
         problems[split] = lpv_fit.make_problem(model, nus, v, h, commands[split], runs.n_steps, runs.dt_s,
                                                runs.substeps)
         _say(f"{split}: {len(v)} flight points x {len(commands[split].kind)} manoeuvres of {runs.duration_s} s, "
@@ -466,12 +466,12 @@ def cmd_worst_case(args) -> int:
 
     out = Path(args.out) if args.out else io.default_out_dir("worst-case", args.config)
     dtype = _dtype(sim.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     r_arm = model.actuator.r_arm_m
     bank, names = _load_bank(cfg.fdd, dtype)
-    space = cfg.search_space()
-    problem = worst_case.Problem(model, cfg.fdd.params(bank, r_arm), cfg.evaluation.settings(r_arm), space,
-                                 np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
+    space = build.search_space(cfg)
+    problem = worst_case.Problem(model, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm),
+                                 space, np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
                                  sim.substeps, dtype)
     scale, value = (180.0 / math.pi / r_arm, "bound_deg") if s.detector == "stall" else (1.0, "bound_ratio")
     budget = worst_case.budget(s.screening, s.starts, s.iterations)
@@ -549,7 +549,7 @@ def _training_set(cfg: config.CampaignConfig, model, bank, dtype):
     from mcfdd.analysis import batch, campaign, scenarios, simulate, tuning
 
     c = cfg.campaign
-    cols, n = cfg.design()
+    cols, n = build.design(cfg)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
     nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind, np.asarray(cols.get("fault_size", np.zeros(n))))
     scen = scenarios.to_scenario(cols, dtype)
@@ -562,19 +562,15 @@ def _training_set(cfg: config.CampaignConfig, model, bank, dtype):
 
 def _tuned_fdd(fdd: config.FddConfig, detector: str, params: dict, tau: float, tune_pole: bool, deg_per_m: float):
     """FddConfig with a detector's tuned evaluator, pole and threshold (6 significant digits), range-checked."""
-    import dataclasses
-
     p = {k: float(f"{v:.6g}") for k, v in params.items()}
-    part = getattr(fdd, detector)
-    changes = {"evaluator": config.EvaluatorConfig(alpha=p["alpha"], beta=p["beta"], gamma_1_s=p["gamma_1_s"])}
+    changes = {f"{detector}.evaluator.{k}": p[k] for k in ("alpha", "beta", "gamma_1_s")}
     if tune_pole:
-        changes["pole_1_s"] = p["pole_1_s"]
+        changes[f"{detector}.pole_1_s"] = p["pole_1_s"]
     if detector == "stall":
-        changes["tau_deg"] = float(f"{tau * deg_per_m:.6g}")
+        changes["stall.tau_deg"] = float(f"{tau * deg_per_m:.6g}")
     else:
-        changes["tau"] = float(f"{tau:.6g}")
-    tuned = dataclasses.replace(fdd, **{detector: dataclasses.replace(part, **changes)})
-    return config.parse(config.FddConfig, config.to_dict(tuned), "fdd")
+        changes["loe.tau"] = float(f"{tau:.6g}")
+    return config.replace(fdd, changes)
 
 
 def cmd_tune(args) -> int:
@@ -592,13 +588,13 @@ def cmd_tune(args) -> int:
         raise config.ConfigError(f"--out: {out} exists and is not empty; choose another folder")
     det = ts.detector
     dtype = _dtype(tr.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     r_arm = model.actuator.r_arm_m
     deg_per_m = 180.0 / math.pi / r_arm
     scale, units = (deg_per_m, "deg") if det == "stall" else (1.0, "theta/||u||")
     bank, names = _load_bank(cfg.fdd, dtype)
-    fdd_params = cfg.fdd.params(bank, r_arm)
-    settings = cfg.evaluation.settings(r_arm)
+    fdd_params = build.fdd_params(cfg.fdd, bank, r_arm)
+    settings = build.settings(cfg.evaluation, r_arm)
     start = time.perf_counter()
     data, n = _training_set(cfg.campaign("training"), model, bank, dtype)
     jax.block_until_ready(data)
@@ -626,7 +622,7 @@ def cmd_tune(args) -> int:
     scan = None
     if not tau_d > tau_f:
         taus = tuning.candidates(tau_f, tau_d, ts.threshold_candidates)
-        trial = _tuned_fdd(cfg.fdd, det, chosen, tau_f, ts.tune_pole, deg_per_m).params(bank, r_arm)
+        trial = build.fdd_params(_tuned_fdd(cfg.fdd, det, chosen, tau_f, ts.tune_pole, deg_per_m), bank, r_arm)
         start = time.perf_counter()
         false, missed = tuning.threshold_scan(trial, settings, data, np.asarray(taus, dtype), tr.dt_s, det,
                                               cfg.fdd.stall.identification)
@@ -718,7 +714,7 @@ def cmd_figures(args) -> int:
     faulty = next(r for r in fig3_cfg.runs if r.fault.kind != "none")
     _say(f"wrote {_save_figure(plots.fig3(df3, free.name, faulty.name, faulty.fault.onset_s), out / 'fig3.png')}")
 
-    table, run_names, family, size = fig4_cfg.table()
+    table, run_names, family, size = build.sweep_table(fig4_cfg)
     df4, names = histories(fig4_cfg.simulation, fig4_cfg.plant, fig4_cfg.fdd, table, run_names)
     n_steps = fig4_cfg.simulation.n_steps
     detected = df4["detected_model"].to_numpy().reshape(len(run_names), n_steps)
