@@ -79,7 +79,7 @@ class Section(BaseModel):
 
     @model_validator(mode="before")
     @classmethod
-    def _lists_as_tuples(cls, data):
+    def _raw_table(cls, data):
         if not isinstance(data, dict):
             return data
         for key, value in data.items():
@@ -197,12 +197,19 @@ def _describe(root, error) -> tuple[str, str]:
     return path, error["msg"]
 
 
+def _first(errors: list) -> dict:
+    """The error to report: the first, unless a table on its path has an unknown key (reported first)."""
+    loc = tuple(errors[0]["loc"])
+    return next((e for e in errors if e["type"] == "extra_forbidden" and loc[:len(e["loc"]) - 1] == e["loc"][:-1]),
+                errors[0])
+
+
 def _validate(cls, data, prefix: str = ""):
     """``cls.model_validate(data)``; a failure is a :class:`ConfigError` with ``.key`` and one line."""
     try:
         return cls.model_validate(data)
     except ValidationError as err:
-        key, message = _describe(cls, err.errors()[0])
+        key, message = _describe(cls, _first(err.errors()))
         raise Invalid(_join(prefix, key) or "configuration", message) from None
 
 
@@ -501,7 +508,7 @@ def _column_value(name, value, key):
     try:
         return _COLUMN_ADAPTERS[name].validate_python(value)
     except ValidationError as err:
-        sub, message = _describe(_COLUMN_TYPES[name], err.errors()[0])
+        sub, message = _describe(_COLUMN_TYPES[name], _first(err.errors()))
         raise Invalid(_join(key, sub), message) from None
 
 
