@@ -585,7 +585,7 @@ class SpaceConfig(Section):
 
     @classmethod
     def __get_pydantic_json_schema__(cls, core_schema, handler):
-        return {"type": "object", "title": cls.__name__, "description": typing.cast(str, cls.__doc__).split("\n")[0],
+        return {"type": "object", "title": cls.__name__, "description": cls.__doc__.splitlines()[0],
                 "properties": {name: _axis_schema(tp) for name, tp in _COLUMN_TYPES.items()},
                 "additionalProperties": False}
 

@@ -224,6 +224,13 @@ def test_override_into_a_missing_key_is_named(overrides, message):
         config.load_config(CONFIGS / "fault_free.toml", overrides=overrides)
 
 
+def test_override_of_a_missing_list_entry_is_named():
+    with pytest.raises(config.ConfigError, match=re.escape("runs[5]: no such entry (runs has 2 entries)")):
+        config.load_config(_valid(), overrides={"runs[5].name": "c"})
+    with pytest.raises(config.ConfigError, match=re.escape("runs[1].fault.size: 1.5 is outside the allowed range")):
+        config.load_config(_valid(), overrides={"runs[1].fault": {"kind": "surface_damage", "size": 1.5}})
+
+
 @pytest.mark.parametrize("key, value", [("campaign.scenarios", 0), ("campaign.scenarios", "256"),
                                         ("fdd.loe.tau", -0.1), ("campaign.design", "halton"),
                                         ("space.fault_kind", ["nothing"])])
