@@ -873,9 +873,15 @@ KINDS = {"simulate": SimulateConfig, "campaign": CampaignConfig, "fit-lpv": LpvF
          "worst-case": WorstCaseConfig, "sweep": SweepConfig}
 
 
+def _plain(data):
+    if isinstance(data, dict):
+        return {k: _plain(v) for k, v in data.items()}
+    return [_plain(v) for v in data] if isinstance(data, (list, tuple)) else data
+
+
 def to_dict(obj) -> dict:
-    """The resolved configuration as plain data (for metadata and reports); parses back to ``obj``."""
-    return obj.model_dump()
+    """The resolved configuration as plain data (tables, lists, scalars); parses back to ``obj``."""
+    return _plain(obj.model_dump())
 
 
 def to_json(obj) -> str:
