@@ -255,8 +255,9 @@ def test_replace_is_validated():
         config.replace(cfg, {"campaign.seed": -1})
     with pytest.raises(config.ConfigError, match="space.vcas_kt: range"):
         config.replace(cfg, {"space.vcas_kt": [300.0, 200.0]})
-    sim = config.replace(config.parse(config.SimulateConfig, _valid()), {"runs[1].manoeuvre.amplitude": -0.3})
-    assert sim.runs[1].manoeuvre.amplitude == -0.3 and sim.runs[0] == config.parse(config.SimulateConfig, _valid()).runs[0]
+    base = config.parse(config.SimulateConfig, _valid())
+    sim = config.replace(base, {"runs[1].manoeuvre.amplitude": -0.3})
+    assert sim.runs[1].manoeuvre.amplitude == -0.3 and sim.runs[0] == base.runs[0]
 
 
 def test_config_module_imports_no_analysis():
