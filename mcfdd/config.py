@@ -1011,7 +1011,12 @@ def replace(cfg, changes: dict):
 
 
 def json_schema(kind: str) -> dict:
-    """JSON Schema (draft 2020-12) of a configuration kind, for editors and validators."""
+    """JSON Schema (draft 2020-12) of a configuration kind (one of :data:`KINDS`), for editors and validators.
+
+    >>> schema = json_schema("campaign")
+    >>> sorted(schema["properties"]), schema["additionalProperties"]
+    (['campaign', 'evaluation', 'fdd', 'plant', 'space'], False)
+    """
     if kind not in KINDS:
         raise ConfigError(f"kind: {kind!r} is not allowed; expected one of {', '.join(map(repr, KINDS))}")
     return {"$schema": "https://json-schema.org/draft/2020-12/schema", **KINDS[kind].model_json_schema()}
