@@ -8,11 +8,10 @@ has are used (same results, slower).
 
 from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS before JAX starts its backends)
 from mcfdd.analysis.campaign import Status
-from mcfdd.config import ConfigError
+from mcfdd.config import ConfigError, load_config
 from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, run_campaign
 from mcfdd.workflows.figures import FiguresResult, paper_figures
 from mcfdd.workflows.fit_lpv import LpvFitResult, fit_lpv
-from mcfdd.workflows.loading import load_config
 from mcfdd.workflows.simulate import Histories, simulate
 from mcfdd.workflows.tune import TuneResult, tune
 from mcfdd.workflows.worst_case import WorstCaseResult, worst_case

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import json
 import math
 import sys
 import tomllib
@@ -55,10 +55,9 @@ def _campaign_config(args) -> config.CampaignConfig:
                 raise config.ConfigError(f"--{flag.replace('_', '-')}: {value} is not allowed; expected "
                                          f"{'a non-negative' if low == 0 else 'a positive'} integer")
             overrides[f"campaign.{flag}"] = value
-    cfg = mcfdd.load_config(args.config, "campaign", overrides)
     if getattr(args, "fdd", None):
-        cfg = dataclasses.replace(cfg, fdd=config.load_fdd_fragment(args.fdd))
-    return cfg
+        overrides["fdd"] = config.to_dict(config.load_fdd_fragment(args.fdd))
+    return mcfdd.load_config(args.config, "campaign", overrides)
 
 
 def cmd_campaign(args) -> int:
@@ -143,6 +142,11 @@ def cmd_figures(args) -> int:
     return 0
 
 
+def cmd_schema(args) -> int:
+    print(json.dumps(config.json_schema(args.kind), indent=1))
+    return 0
+
+
 def _command(sub, name: str, func, summary: str, example: str | None, out: str):
     """A subcommand taking a TOML config (unless ``example`` is None) and ``--out``."""
     p = sub.add_parser(name, help=summary)
@@ -178,6 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
              "Carlo", "worst_case_stall.toml", "results/worst-case-<config>")
     _command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
              "campaign", "tune_stall.toml", "the first free results/tune-<config>[-N]")
+    p = sub.add_parser("schema", help="print the JSON Schema of a config kind (for editors and validators)")
+    p.add_argument("kind", choices=list(config.KINDS), help="the config kind")
+    p.set_defaults(func=cmd_schema)
     return parser
 
 

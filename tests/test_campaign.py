@@ -14,7 +14,7 @@ from scipy.stats import binomtest
 
 import mcfdd
 from mcfdd import cli, config
-from mcfdd.analysis import campaign, metrics, scenarios, simulate
+from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
 from mcfdd.workflows.common import load_bank
 
 SMALL = """
@@ -225,11 +225,11 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)
     c = cfg.campaign
-    cols, n = cfg.design()
-    model = cfg.plant.model()
+    cols, n = build.design(cfg)
+    model = build.plant_model(cfg.plant)
     bank, _ = load_bank(cfg.fdd, np.float64)
-    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
-    settings = cfg.evaluation.settings(model.actuator.r_arm_m)
+    fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
+    settings = build.settings(cfg.evaluation, model.actuator.r_arm_m)
     onset = scenarios.fault_onsets(cols, n)
     _, accept = scenarios.true_model(np.asarray(bank.nu), cols["fault_kind"], cols["fault_size"])
     scen = scenarios.to_scenario(cols, np.float64)
@@ -389,17 +389,35 @@ def test_bad_flags_are_named(tmp_path, capsys):
 def test_non_finite_scenario_is_marked_and_the_batch_goes_on():
     cfg = config.parse(config.CampaignConfig, {"campaign": {"scenarios": 4, "duration_s": 1.0, "design": "random"},
                                                "space": {"vcas_kt": [200.0, 300.0]}})
-    cols, n = cfg.design()
-    model = cfg.plant.model()
+    cols, n = build.design(cfg)
+    model = build.plant_model(cfg.plant)
     bank, _ = load_bank(cfg.fdd, np.float64)
-    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
+    fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
     scen = scenarios.to_scenario(cols, np.float64)
     scen = scen._replace(noise_std_m=np.where(np.arange(n) == 2, np.nan, scen.noise_std_m))
     truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
-    raw = campaign.run_batch(model, fdd, cfg.evaluation.settings(model.actuator.r_arm_m), scen, truth,
+    raw = campaign.run_batch(model, fdd, build.settings(cfg.evaluation, model.actuator.r_arm_m), scen, truth,
                              simulate.run_keys(0, range(n)), 100, 0.01, 4, (0,))
     status = np.asarray(raw["status"])
     assert list(status) == [0, 0, campaign.Status.NON_FINITE, 0]
     out = metrics.outcomes({k: np.asarray(v) for k, v in raw.items()}, np.full(n, np.inf),
                            np.zeros((n, 6), bool), np.zeros(n, int), 1.0, 120.0)
     assert not out["false_alarm"][2] and not out["detected"][2]
+
+
+def test_schema_command_validates_the_campaign_configs_and_rejects_a_typo(capsys):
+    import tomllib
+
+    import jsonschema
+
+    assert run_cli("schema", "campaign") == 0
+    validator = jsonschema.Draft202012Validator(json.loads(capsys.readouterr().out))
+    folder = Path(__file__).resolve().parent.parent / "configs"
+    campaigns = [p for p in sorted(folder.glob("*.toml")) if mcfdd.config.infer_kind(
+        tomllib.loads(p.read_text())) == "campaign"]
+    assert {p.name for p in campaigns} >= {"loe_campaign.toml", "stall_campaign.toml", "fault_free.toml"}
+    for path in campaigns:
+        data = tomllib.loads(path.read_text())
+        validator.validate(data)
+        data["campaign"]["scenarioz"] = data["campaign"].pop("scenarios")
+        assert not validator.is_valid(data), path.name

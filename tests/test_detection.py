@@ -1,13 +1,12 @@
 """Both FDD systems in closed loop on the nonlinear plant (issues 4 and 5), default parameters."""
 
-import dataclasses
 
 import numpy as np
 import pytest
 
 import mcfdd
 from mcfdd import config
-from mcfdd.analysis import metrics
+from mcfdd.analysis import build, metrics
 
 CLOSED_LOOP = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip")
 
@@ -37,7 +36,7 @@ def test_fault_free_runs_never_decide_a_fault_model():
 def test_fig4_grid_faults_are_identified_without_switching():
     """At the Fig. 4 flight point, faults at the bank's grid values are identified as that model."""
     sweep = config.load(config.SweepConfig, "configs/fig4.toml")
-    base = sweep.run.columns()
+    base = build.run_columns(sweep.run)
     cases = {"disconnection": ("disconnection", 1.0, 1), "surface-67": ("surface_damage", 0.67, 2),
              "leakage-27": ("leakage", 0.27, 5), "leakage-15": ("leakage", 0.15, 4)}
     runs = []
@@ -58,7 +57,7 @@ def test_fig4_grid_faults_are_identified_without_switching():
 @pytest.fixture(scope="module")
 def fig5():
     cfg = config.load(config.SimulateConfig, "configs/fig5.toml")
-    cfg = dataclasses.replace(cfg, simulation=dataclasses.replace(cfg.simulation, precision="float64"))
+    cfg = config.replace(cfg, {"simulation.precision": "float64"})
     return mcfdd.simulate(cfg, progress=False).to_pandas()
 
 

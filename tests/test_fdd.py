@@ -18,6 +18,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
 from mcfdd import io
+from mcfdd.analysis import build
 from mcfdd.config import FddConfig, LoeDetectionConfig
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, system, thresholds
 
@@ -527,7 +528,7 @@ def test_system_detects_the_plant_model(bank):
     """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
     1 once excited. A second run with another tau does not recompile."""
     loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0)
-    params = FddConfig(loe=loe).params(bank, r_arm_m=R_ARM_M)
+    params = build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
     t = np.arange(1500) * DT_S
     u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)
     excited = t >= 5.0

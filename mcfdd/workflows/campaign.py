@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import DEG_PER_RAD, as_config, dtype_of, load_bank, precision, save_figure
 
@@ -51,15 +52,15 @@ def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
     from mcfdd.analysis import batch, scenarios
 
     dtype = dtype_of(cfg.campaign.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     bank, names = load_bank(cfg.fdd, dtype)
-    cols, n = cfg.design()
+    cols, n = build.design(cfg)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
     nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind,
                                            np.asarray(cols.get("fault_size", np.zeros(n))))
     all_scenarios = scenarios.to_scenario(cols, dtype)
-    return CampaignSetup(model, names, cfg.fdd.params(bank, model.actuator.r_arm_m),
-                         cfg.evaluation.settings(model.actuator.r_arm_m), cols, n,
+    return CampaignSetup(model, names, build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m),
+                         build.settings(cfg.evaluation, model.actuator.r_arm_m), cols, n,
                          scenarios.fault_onsets(cols, n), nearest, accept, all_scenarios,
                          batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
 

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
-from mcfdd.workflows.loading import load_config
 
 DEG_PER_RAD = 180.0 / np.pi
 
@@ -15,7 +14,7 @@ DEG_PER_RAD = 180.0 / np.pi
 def as_config(cfg, kind: str):
     """``cfg`` itself when parsed already; a TOML path or a dict is loaded as ``kind``."""
     if isinstance(cfg, (str, Path, dict)):
-        return load_config(cfg, kind)
+        return config.load_config(cfg, kind)
     return cfg
 
 

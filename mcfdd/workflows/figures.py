@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.workflows.common import load_bank, save_figure
-from mcfdd.workflows.loading import load_config
 from mcfdd.workflows.simulate import histories, runs_table
 
 
@@ -73,9 +73,9 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
     from mcfdd.analysis import metrics
 
     folder = Path(folder)
-    fig3_cfg = load_config(folder / "fig3.toml", "simulate")
-    fig4_cfg = load_config(folder / "fig4.toml", "sweep")
-    fig5_cfg = load_config(folder / "fig5.toml", "simulate")
+    fig3_cfg = config.load_config(folder / "fig3.toml", "simulate")
+    fig4_cfg = config.load_config(folder / "fig4.toml", "sweep")
+    fig5_cfg = config.load_config(folder / "fig5.toml", "simulate")
     figures = {}
     df3, _ = histories(fig3_cfg.simulation, fig3_cfg.plant, fig3_cfg.fdd, runs_table(fig3_cfg.runs),
                        [r.name for r in fig3_cfg.runs], progress)
@@ -83,7 +83,7 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
     faulty = next(r for r in fig3_cfg.runs if r.fault.kind != "none")
     figures["fig3"] = plots.fig3(df3, free.name, faulty.name, faulty.fault.onset_s)
 
-    table, run_names, family, size = fig4_cfg.table()
+    table, run_names, family, size = build.sweep_table(fig4_cfg)
     df4, names = histories(fig4_cfg.simulation, fig4_cfg.plant, fig4_cfg.fdd, table, run_names, progress)
     n_steps = fig4_cfg.simulation.n_steps
     detected = df4["detected_model"].to_numpy().reshape(len(run_names), n_steps)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, precision, save_figure
 
@@ -67,8 +68,8 @@ def fit_lpv(cfg, progress: bool = True) -> LpvFitResult:
     >>> import mcfdd
     >>> cfg = {"models": [{"name": "fault-free"}], "runs": {"duration_s": 0.5}, "optimiser": {"iterations": 1},
     ...        "envelope": {"grid": [2, 2], "validation_points": 1},
-    ...        "training": [{"kind": "ol_step", "amplitude": 0.5, "t_start_s": 0.1}],
-    ...        "validation": [{"kind": "ol_step", "amplitude": 0.5, "t_start_s": 0.1}]}
+    ...        "training": [{"kind": "ol_step", "amplitude": 0.5, "t_start_s": 0.1, "duration_s": 0.3}],
+    ...        "validation": [{"kind": "ol_step", "amplitude": 0.5, "t_start_s": 0.1, "duration_s": 0.3}]}
     >>> mcfdd.fit_lpv(cfg, progress=False).models
     ('fault-free',)
     """
@@ -86,16 +87,16 @@ def _fit(cfg: config.LpvFitConfig, source, progress: bool) -> LpvFitResult:
     from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 
     dtype = dtype_of(cfg.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     runs, opt, max_mach = cfg.runs, cfg.optimiser, cfg.plant.aircraft.max_mach
-    nus, names = cfg.nus(), [m.name for m in cfg.models]
+    nus, names = build.lpv_nus(cfg), [m.name for m in cfg.models]
     r_arm = model.actuator.r_arm_m
-    points = {"training": cfg.envelope.training_points(max_mach),
-              "validation": cfg.envelope.validation_flight_points(max_mach, cfg.seed)}
+    points = {"training": build.lpv_training_points(cfg.envelope, max_mach),
+              "validation": build.lpv_validation_points(cfg.envelope, max_mach, cfg.seed)}
     commands, problems = {}, {}
     start = time.perf_counter()
     for split, (v, h) in points.items():
-        commands[split] = cfg.manoeuvre_params(split, dtype)
+        commands[split] = build.lpv_manoeuvre_params(cfg, split, dtype)
         problems[split] = lpv_fit.make_problem(model, nus, v, h, commands[split], runs.n_steps, runs.dt_s,
                                                runs.substeps)
         note(f"{split}: {len(v)} flight points x {len(commands[split].kind)} manoeuvres of {runs.duration_s} s, "

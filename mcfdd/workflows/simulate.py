@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.progress import note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure, slug
 
 
 def runs_table(runs) -> dict:
     """Scenario columns (name -> (B,) array) of a config's ``[[runs]]``."""
-    rows = [run.columns() for run in runs]
+    rows = [build.run_columns(run) for run in runs]
     return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
 
@@ -33,9 +34,9 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
 
     with precision(sim.precision):
         dtype = dtype_of(sim.precision)
-        model = plant_cfg.model()
+        model = build.plant_model(plant_cfg)
         bank, names = load_bank(fdd_cfg, dtype)
-        fdd_params = fdd_cfg.params(bank, model.actuator.r_arm_m)
+        fdd_params = build.fdd_params(fdd_cfg, bank, model.actuator.r_arm_m)
         scenarios = to_scenario(table, dtype)
         kinds = batch.kinds_in(scenarios.manoeuvre.kind)
         keys = simulate.run_keys(sim.seed, range(len(run_names)))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -10,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows.campaign import run_campaign
 from mcfdd.workflows.common import CompileCounter, as_config, dtype_of, load_bank, precision, save_figure
@@ -25,7 +25,7 @@ def training_set(cfg: config.CampaignConfig, model, bank, dtype):
     from mcfdd.analysis import batch, campaign, scenarios, simulate, tuning
 
     c = cfg.campaign
-    cols, n = cfg.design()
+    cols, n = build.design(cfg)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
     nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind, np.asarray(cols.get("fault_size", np.zeros(n))))
     scen = scenarios.to_scenario(cols, dtype)
@@ -39,16 +39,14 @@ def training_set(cfg: config.CampaignConfig, model, bank, dtype):
 def tuned_fdd(fdd: config.FddConfig, detector: str, params: dict, tau: float, tune_pole: bool, deg_per_m: float):
     """FddConfig with a detector's tuned evaluator, pole and threshold (6 significant digits), range-checked."""
     p = {k: float(f"{v:.6g}") for k, v in params.items()}
-    part = getattr(fdd, detector)
-    changes = {"evaluator": config.EvaluatorConfig(alpha=p["alpha"], beta=p["beta"], gamma_1_s=p["gamma_1_s"])}
+    changes = {f"{detector}.evaluator.{k}": p[k] for k in ("alpha", "beta", "gamma_1_s")}
     if tune_pole:
-        changes["pole_1_s"] = p["pole_1_s"]
+        changes[f"{detector}.pole_1_s"] = p["pole_1_s"]
     if detector == "stall":
-        changes["tau_deg"] = float(f"{tau * deg_per_m:.6g}")
+        changes["stall.tau_deg"] = float(f"{tau * deg_per_m:.6g}")
     else:
-        changes["tau"] = float(f"{tau:.6g}")
-    tuned = dataclasses.replace(fdd, **{detector: dataclasses.replace(part, **changes)})
-    return config.parse(config.FddConfig, config.to_dict(tuned), "fdd")
+        changes["loe.tau"] = float(f"{tau:.6g}")
+    return config.replace(fdd, changes)
 
 
 class TuneResult:
@@ -123,8 +121,11 @@ def tune(cfg, progress: bool = True) -> TuneResult:
         A :class:`TuneResult`.
 
     >>> import mcfdd
-    >>> cfg = {"tune": {"iterations": 1}, "training": {"scenarios": 2, "duration_s": 0.5},
-    ...        "validation": {"scenarios": 2, "seed": 1, "duration_s": 0.5}}
+    >>> space = {"vcas_kt": 380.0, "altitude_m": 0.0, "hinge_scale": 1.3, "manoeuvre_kind": "ol_step",
+    ...          "amplitude": [0.9, 1.0], "t_start_s": 0.2, "duration_s": 1.0, "ramp_s": 0.1}
+    >>> cfg = {"tune": {"iterations": 1}, "training": {"scenarios": 2, "duration_s": 1.5},
+    ...        "validation": {"scenarios": 2, "seed": 1, "duration_s": 1.5}, "evaluation": {"settle_s": 0.1},
+    ...        "space": space}
     >>> list(mcfdd.tune(cfg, progress=False).validation["fdd"])
     ['before', 'after']
     """
@@ -144,13 +145,13 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
     ts, tr = cfg.tune, cfg.training
     det = ts.detector
     dtype = dtype_of(tr.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     r_arm = model.actuator.r_arm_m
     deg_per_m = 180.0 / math.pi / r_arm
     scale, units = (deg_per_m, "deg") if det == "stall" else (1.0, "theta/||u||")
     bank, names = load_bank(cfg.fdd, dtype)
-    fdd_params = cfg.fdd.params(bank, r_arm)
-    settings = cfg.evaluation.settings(r_arm)
+    fdd_params = build.fdd_params(cfg.fdd, bank, r_arm)
+    settings = build.settings(cfg.evaluation, r_arm)
     start = time.perf_counter()
     data, n = training_set(cfg.campaign("training"), model, bank, dtype)
     jax.block_until_ready(data)
@@ -177,7 +178,7 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
     scan = None
     if not tau_d > tau_f:
         taus = tuning.candidates(tau_f, tau_d, ts.threshold_candidates)
-        trial = tuned_fdd(cfg.fdd, det, chosen, tau_f, ts.tune_pole, deg_per_m).params(bank, r_arm)
+        trial = build.fdd_params(tuned_fdd(cfg.fdd, det, chosen, tau_f, ts.tune_pole, deg_per_m), bank, r_arm)
         start = time.perf_counter()
         false, missed = tuning.threshold_scan(trial, settings, data, np.asarray(taus, dtype), tr.dt_s, det,
                                               cfg.fdd.stall.identification)

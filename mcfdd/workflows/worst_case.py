@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mcfdd import config, io
+from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure
 
@@ -99,11 +100,11 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
 
     sim, s = cfg.simulation, cfg.search
     dtype = dtype_of(sim.precision)
-    model = cfg.plant.model()
+    model = build.plant_model(cfg.plant)
     r_arm = model.actuator.r_arm_m
     bank, names = load_bank(cfg.fdd, dtype)
-    space = cfg.search_space()
-    problem = wc.Problem(model, cfg.fdd.params(bank, r_arm), cfg.evaluation.settings(r_arm), space,
+    space = build.search_space(cfg)
+    problem = wc.Problem(model, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm), space,
                          np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
                          sim.substeps, dtype)
     scale, value = (180.0 / math.pi / r_arm, "bound_deg") if s.detector == "stall" else (1.0, "bound_ratio")
