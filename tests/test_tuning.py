@@ -289,7 +289,7 @@ def test_new_fdd_numbers_do_not_recompile(tune_data, corner):
     theta = tuning.initial(params, "stall")
     other = config.parse(config.FddConfig, {"stall": {"tau_deg": 2.0, "pole_1_s": 3.0,
                                                       "evaluator": {"alpha": 2.0, "beta": 0.5, "gamma_1_s": 1.0}}})
-    new_params = other.params(bank, cfg.plant.actuator.r_arm_m)
+    new_params = build.fdd_params(other, bank, cfg.plant.actuator.r_arm_m)
     tuning.gap_and_grad(theta, params, settings, data, 0.05, DT_S, "stall", True)
     with CompileCounter() as second:
         tuning.gap_and_grad(theta._replace(log_gamma=theta.log_gamma + 1.0), new_params, settings, data, 0.07, DT_S,
@@ -321,7 +321,7 @@ def test_new_fdd_numbers_do_not_recompile(tune_data, corner):
     wc.evaluate(corner.model, corner.fdd_params, corner.settings, box, anchors, jnp.asarray(u), keys, 0.05,
                 **corner.static())
     with CompileCounter() as second:
-        wc.evaluate(corner.model, other.params(load_bank(other, np.float64)[0], r_arm), corner.settings, box,
+        wc.evaluate(corner.model, build.fdd_params(other, load_bank(other, np.float64)[0], r_arm), corner.settings, box,
                     anchors, jnp.asarray(u), keys, 0.05, **corner.static())
     assert second.count == 0
 
