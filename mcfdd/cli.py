@@ -131,8 +131,8 @@ def cmd_figures(args) -> int:
         rows = sweep[sweep["family"] == fam]
         for v in result.grid[fam]:
             row = rows.iloc[(rows["fault_size"] - v).abs().argmin()]
-            print(f"fig4 {fam} {100 * row['fault_size']:.0f} %: decided {row['detected_model_name']}, first fault model "
-                  f"after {row['detection_time_s']:.2f} s, {row['switches']} switch(es)")
+            print(f"fig4 {fam} {100 * row['fault_size']:.0f} %: decided {row['detected_model_name']}, "
+                  f"first fault model after {row['detection_time_s']:.2f} s, {row['switches']} switch(es)")
     for _, e in result.stall_events.iterrows():
         parts = [f"{m} none" if math.isnan(e[f"latency_{m}_s"]) else f"{m} {e[f'latency_{m}_s']:.2f} s"
                  for m in ("signal", "model")]

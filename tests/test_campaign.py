@@ -127,8 +127,8 @@ def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
 def test_chunk_size_does_not_change_the_table(in_memory):
     _, second, _ = in_memory
     chunks = []
-    other = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING, "campaign.chunk_size": 256}),
-                               progress=False, on_chunk=chunks.append)
+    cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING, "campaign.chunk_size": 256})
+    other = mcfdd.run_campaign(cfg, progress=False, on_chunk=chunks.append)
     assert [len(c) for c in chunks] == [256, 64]
     pd.testing.assert_frame_equal(second.scenarios, other.scenarios)
 

@@ -267,8 +267,7 @@ def _mcfdd_imports(module: str) -> set[str]:
     found = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mcfdd"):
-            found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names
-                                      if (root / f"{node.module}.{a.name}".replace(".", "/")).with_suffix(".py").is_file()}
+            found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
         elif isinstance(node, ast.Import):
             found |= {a.name for a in node.names if a.name.startswith("mcfdd")}
     return {m for m in found if (root / m.replace(".", "/")).with_suffix(".py").is_file()}
