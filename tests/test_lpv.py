@@ -94,14 +94,15 @@ def test_fit_does_not_recompile_for_new_numbers(small, model, training):
 
 
 def test_shipped_bank_matches_the_nonlinear_actuator_on_held_out_runs(small, model, shipped):
-    """Validation flight points and manoeuvres, none of them in the fit: RMS error below 1 % of the amplitude."""
+    """Validation flight points and manoeuvres, none of them in the fit. Measured on this reduced problem:
+    RMS error 0.027-0.072 % of the amplitude per model, largest error 0.10-0.41 %; allowed 0.1 % and 0.6 %."""
     bank, names = shipped
     assert names == tuple(m.name for m in small.models)
     np.testing.assert_allclose(bank.nu, build.lpv_nus(small))
     summary = rms_errors(bank, problem(small, model, "validation"), small)
     assert np.all(summary["runs"] > 0)
-    assert np.all(summary["rms"] < 0.01), summary["rms"]
-    assert np.all(summary["max"] < 0.05), summary["max"]
+    assert np.all(summary["rms"] < 0.001), summary["rms"]
+    assert np.all(summary["max"] < 0.006), summary["max"]
 
 
 def test_shipped_bank_is_what_the_config_fits(cfg, small, model, training, shipped):
