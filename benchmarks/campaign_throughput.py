@@ -1,7 +1,7 @@
 """Throughput of the full campaign pipeline (plant + both FDD systems + online reductions) in float32.
 
 What is timed is :func:`mcfdd.analysis.campaign.run_batch` run the way ``mcfdd campaign`` runs it
-(:func:`mcfdd.cli.run_campaign`): the scenarios of a realistic mixed space (``SPACE`` below: four fault
+(:func:`mcfdd.run_campaign`): the scenarios of a realistic mixed space (``SPACE`` below: four fault
 kinds on a grid, four closed-loop manoeuvre families, turbulence, uncertainties, Latin hypercube
 over the rest) are split into chunks of
 ``--chunk-size`` padded to a multiple of ``LANE_BLOCK`` scenarios per device, and each chunk's
@@ -48,9 +48,7 @@ import sys
 import time
 from functools import partial
 
-from mcfdd import cli
-
-cli.use_all_cores()  # before JAX creates its CPU backend: one device per core
+import mcfdd  # first: one JAX CPU device per core, before JAX creates its backend
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -58,11 +56,11 @@ import numpy as np  # noqa: E402
 from jax.sharding import AxisType  # noqa: E402
 from jax.sharding import PartitionSpec as P  # noqa: E402
 
-import mcfdd  # noqa: E402
 from mcfdd import config, io  # noqa: E402
 from mcfdd.analysis import campaign, simulate  # noqa: E402
 from mcfdd.fdd import system  # noqa: E402
 from mcfdd.plant import closed_loop  # noqa: E402
+from mcfdd.workflows import campaign as campaign_runner  # noqa: E402
 
 SPACE = {
     "vcas_kt": [160.0, 350.0], "altitude_m": [0.0, 10000.0], "turbulence": ["light", "moderate"],
@@ -79,11 +77,11 @@ GRID_CELLS = len(SPACE["fault_kind"])  # fault_kind is gridded: scenarios = samp
 def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
         raise SystemExit(f"scenario counts must be multiples of {GRID_CELLS} (fault kinds on a grid)")
-    return config.parse(config.CampaignConfig, {
+    return mcfdd.load_config({
         "campaign": {"scenarios": n_scenarios // GRID_CELLS, "design": "lhs", "grid": ["fault_kind"], "seed": 1,
                      "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
         "space": SPACE,
-    })
+    }, "campaign")
 
 
 class Problem:
@@ -93,19 +91,19 @@ class Problem:
         cfg = campaign_config(n_scenarios, duration_s, chunk_size)
         self.c = cfg.campaign
         start = time.perf_counter()
-        self.setup = cli.campaign_setup(cfg)
+        self.setup = campaign_runner.campaign_setup(cfg)
         self.setup_s = time.perf_counter() - start
         self.n = self.setup.n
         assert self.n == n_scenarios, (self.n, n_scenarios)
-        self.size = cli.chunk_size(self.c.chunk_size, self.n)
+        self.size = campaign_runner.chunk_size(self.c.chunk_size, self.n)
         self.chunks = [np.arange(i, min(i + self.size, self.n)) for i in range(0, self.n, self.size)]
 
     def inputs(self, ids):
         """Padded scenarios, truths and keys of a chunk, as ``run_campaign`` builds them."""
-        return cli.chunk_inputs(self.setup, self.c.seed, ids, self.size)
+        return campaign_runner.chunk_inputs(self.setup, self.c.seed, ids, self.size)
 
     def run_chunk(self, ids, n_steps=None):
-        """One chunk as the CLI runs it: gather, pad, run_batch, outcomes back to host arrays."""
+        """One chunk as ``run_campaign`` runs it: gather, pad, run_batch, outcomes back to host arrays."""
         s, c = self.setup, self.c
         raw = campaign.run_batch(s.model, s.fdd_params, s.settings, *self.inputs(ids), n_steps or c.n_steps, c.dt_s,
                                  c.substeps, s.kinds)
@@ -390,7 +388,7 @@ def main(argv=None):
     print(f"jax {jax.__version__}, {jax.device_count()} {jax.devices()[0].platform} device(s) "
           f"({os.cpu_count()} cores, XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}), "
           f"{platform.processor() or platform.machine()}, float32, dt 0.01 s, 4 actuator sub-steps, "
-          f"chunks of {args.chunk_size} padded to {cli.LANE_BLOCK} x devices, best of {args.repeats}")
+          f"chunks of {args.chunk_size} padded to {campaign_runner.LANE_BLOCK} x devices, best of {args.repeats}")
     print(f"mcfdd {io.git_revision()}, sources {source_digest()}")
     print(f"load average before start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     specs = [{"kind": "pipeline", "scenarios": n, "duration_s": 60.0, "chunk_size": args.chunk_size,

@@ -21,9 +21,7 @@ import platform
 import resource
 import time
 
-from mcfdd import cli
-
-cli.use_all_cores()  # before JAX creates its CPU backend, as the mcfdd command does
+import mcfdd  # noqa: F401  (first: one JAX CPU device per core, before JAX creates its backend)
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

@@ -1,160 +1,228 @@
-"""Configuration: TOML files parsed once into frozen dataclasses (the edge of the package).
+"""Configuration: TOML files and dicts validated once into frozen pydantic models (the edge).
 
-Every section is a frozen dataclass whose fields carry their unit in the name and an allowed
-range. Parsing rejects unknown keys, wrong types and out-of-range values with a
-:class:`ConfigError` that names the key path (``runs[1].fault.size``) and what is allowed.
-Conversion to the SI pytrees the simulation uses happens here and nowhere else.
+Every section is a frozen model that forbids unknown keys; its fields carry their unit in the
+name and an allowed range (:func:`spec`) or a ``Literal`` of choices. Types are strict: a string
+is not a number and a bool is not an integer, while an integer is a fine number. Every error is a
+:class:`ConfigError` of one line naming the key path (``runs[1].fault.size``) and what is allowed.
+
+This module parses and nothing else: the SI pytrees the simulation uses are built from the parsed
+models by :mod:`mcfdd.analysis.build`. Adding a key to a section is one line, e.g.::
+
+    window_s: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="what it sets")
+    mode: Literal["a", "b"] = spec("a", doc="what it selects")
+
+and cross-key rules go in the section's :meth:`Section.check`, raising :class:`Invalid`.
 """
 
-from __future__ import annotations
-
+import copy
 import dataclasses
 import json
 import math
+import re
 import tomllib
 import types
 import typing
 from pathlib import Path
+from typing import Annotated, Literal
 
+import annotated_types
 import numpy as np
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, SkipValidation, TypeAdapter, ValidationError, model_serializer
+from pydantic import model_validator
+from pydantic.fields import FieldInfo
+from pydantic_core import PydanticUndefined
 
-from mcfdd.fdd import evaluator, lpv, stall, system
-from mcfdd.analysis import campaign as campaign_sim
-from mcfdd.analysis import scenarios as space
-from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres, turbulence
+from mcfdd.fdd import lpv
+from mcfdd.plant import atmosphere, manoeuvres, turbulence
+
+FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
+PARAMETRIC = ("leakage", "surface_damage", "disconnection")
+DESIGNS = ("grid", "random", "lhs", "sobol")
+PRECISIONS = ("float32", "float64")
+TURBULENCE_LEVELS = tuple(turbulence.LEVELS)
+VCAS_RANGE_KT = (80.0, 420.0)
+ALTITUDE_RANGE_M = (0.0, 12500.0)
 
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, of the wrong type or out of range."""
 
 
-_NO_META = {"lo": None, "hi": None, "lo_open": False, "choices": None, "doc": ""}
+class Invalid(ConfigError):
+    """A rule across keys is broken at ``key``, a path relative to the section that checks it."""
+
+    def __init__(self, key: str, message: str):
+        super().__init__(f"{key}: {message}" if key else message)
+        self.key, self.message = key, message
 
 
-def spec(default=dataclasses.MISSING, *, lo=None, hi=None, lo_open=False, choices=None, doc=""):
-    """A dataclass field with an allowed range [lo, hi] (open at lo if ``lo_open``) or choices."""
-    meta = {"lo": lo, "hi": hi, "lo_open": lo_open, "choices": choices, "doc": doc}
-    if isinstance(default, (list, dict)) or dataclasses.is_dataclass(default):
-        value = default
-        return dataclasses.field(default_factory=lambda: value, metadata=meta)
-    return dataclasses.field(default=default, metadata=meta)
+def _bounds(lo=None, hi=None, lo_open=False) -> dict:
+    bounds = {} if lo is None else {"gt" if lo_open else "ge": lo}
+    return bounds if hi is None else {**bounds, "le": hi}
+
+
+def spec(default=PydanticUndefined, *, lo=None, hi=None, lo_open=False, doc=""):
+    """A field with an allowed range [lo, hi] (open at lo if ``lo_open``); no default: required."""
+    return Field(default, description=doc or None, **_bounds(lo, hi, lo_open))
+
+
+def bounded(lo=None, hi=None, lo_open=False, tp=float):
+    """Type ``tp`` within [lo, hi], for the elements of a fixed-length list."""
+    return Annotated[tp, Field(**_bounds(lo, hi, lo_open))]
+
+
+class Section(BaseModel):
+    """A TOML table: frozen, unknown keys forbidden, strict types, lists read as tuples."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", strict=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _raw_table(cls, data):
+        if not isinstance(data, dict):
+            return data
+        for key, value in data.items():
+            if isinstance(value, float) and math.isnan(value):
+                raise Invalid(key, "nan is not a number")
+        return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+
+    @model_validator(mode="after")
+    def _checked(self):
+        self.check()
+        return self
+
+    def check(self):
+        """Rules across keys of the section; raise :class:`Invalid` naming the key."""
+
+
+# --------------------------------------------------------------------------------------------
+# One-line messages from pydantic's errors
+
+_EXPECTED = {
+    "float_type": "a number", "float_parsing": "a number", "int_type": "an integer", "int_from_float": "an integer",
+    "int_parsing": "an integer", "bool_type": "true or false", "bool_parsing": "true or false",
+    "string_type": "a string", "model_type": "a table", "model_attributes_type": "a table", "dict_type": "a table",
+    "tuple_type": "a list", "list_type": "a list",
+}
+_RANGE_ERRORS = ("greater_than", "greater_than_equal", "less_than", "less_than_equal")
+_TOML_TYPES = {bool: "boolean", int: "integer", float: "float", str: "string", dict: "table", list: "list",
+               tuple: "list"}
+
+
+def _key_path(loc) -> str:
+    path = ""
+    for part in loc:
+        path = _join(path, f"[{part}]" if isinstance(part, int) else str(part))
+    return path
+
+
+def _join(path: str, key: str) -> str:
+    if not (path and key):
+        return path or key
+    return path + (key if key.startswith("[") else f".{key}")
+
+
+def _unwrap(tp):
+    """(type, constraints) of an annotation without Annotated and Optional."""
+    meta = []
+    while True:
+        if typing.get_origin(tp) is Annotated:
+            tp, *extra = typing.get_args(tp)
+            for m in extra:
+                meta.extend(m.metadata if isinstance(m, FieldInfo) else [m])
+        elif typing.get_origin(tp) in (typing.Union, types.UnionType):
+            tp = next(a for a in typing.get_args(tp) if a is not type(None))
+        else:
+            return tp, meta
+
+
+def _is_section(tp) -> bool:
+    return isinstance(tp, type) and issubclass(tp, BaseModel)
+
+
+def _target(root, loc):
+    """(type, constraints) of the value at ``loc`` below the annotation ``root``; (None, []) if unknown."""
+    tp, meta = _unwrap(root)
+    for part in loc:
+        if isinstance(part, str) and _is_section(tp) and part in tp.model_fields:
+            field = tp.model_fields[part]
+            tp, extra = _unwrap(field.annotation)
+            meta = list(field.metadata) + extra
+        elif isinstance(part, int) and typing.get_origin(tp) is tuple:
+            args = typing.get_args(tp)
+            tp, meta = _unwrap(args[0] if args[1:] == (Ellipsis,) else args[min(part, len(args) - 1)])
+        else:
+            return None, []
+    return tp, meta
 
 
 def _describe_range(meta) -> str:
-    if meta["choices"] is not None:
-        return "one of " + ", ".join(repr(c) for c in meta["choices"])
-    lo, hi = meta["lo"], meta["hi"]
-    left = "(" if meta["lo_open"] else "["
+    lo = next((m.ge if isinstance(m, annotated_types.Ge) else m.gt for m in meta
+               if isinstance(m, (annotated_types.Ge, annotated_types.Gt))), None)
+    hi = next((m.le for m in meta if isinstance(m, annotated_types.Le)), None)
+    left = "(" if any(isinstance(m, annotated_types.Gt) for m in meta) else "["
     return f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
 
 
-def _check_range(value, meta, path):
-    if meta["choices"] is not None:
-        if value not in meta["choices"]:
-            raise ConfigError(f"{path}: {value!r} is not allowed; expected {_describe_range(meta)}")
-        return
-    lo, hi = meta["lo"], meta["hi"]
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        if math.isnan(value):
-            raise ConfigError(f"{path}: nan is not a number")
-        below = lo is not None and (value <= lo if meta["lo_open"] else value < lo)
-        if below or (hi is not None and value > hi):
-            raise ConfigError(f"{path}: {value!r} is outside the allowed range {_describe_range(meta)}")
+def _shown(value) -> str:
+    return repr(list(value) if isinstance(value, tuple) else value)
 
 
-def _type_name(tp) -> str:
-    return getattr(tp, "__name__", str(tp))
+def _describe(root, error) -> tuple[str, str]:
+    """(key path, message) of one pydantic error below the annotation ``root``."""
+    loc, kind, value = tuple(error["loc"]), error["type"], error.get("input")
+    path = _key_path(loc)
+    cause = error.get("ctx", {}).get("error")
+    if isinstance(cause, Invalid):
+        return _join(path, cause.key), cause.message
+    if kind == "extra_forbidden":
+        parent, _ = _target(root, loc[:-1])
+        allowed = ", ".join(sorted(parent.model_fields)) if _is_section(parent) else ""
+        return path, f"unknown key; allowed keys are {allowed}"
+    if kind == "missing":
+        return path, "missing required key"
+    tp, meta = _target(root, loc)
+    if kind == "literal_error":
+        return path, f"{value!r} is not allowed; expected one of {', '.join(repr(c) for c in typing.get_args(tp))}"
+    if kind in _RANGE_ERRORS:
+        if isinstance(value, float) and math.isnan(value):
+            return path, "nan is not a number"
+        return path, f"{value!r} is outside the allowed range {_describe_range(meta)}"
+    if kind in ("too_short", "too_long"):
+        return path, f"expected a list of {len(typing.get_args(tp))} values, got {len(value)}"
+    if kind in _EXPECTED:
+        got = _TOML_TYPES.get(type(value), type(value).__name__)
+        return path, f"expected {_EXPECTED[kind]}, got {got} {_shown(value)}"
+    return path, error["msg"]
 
 
-def _convert(tp, value, path, meta):
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        options = [a for a in typing.get_args(tp) if a is not type(None)]
-        if value is None:
-            return None
-        return _convert(options[0], value, path, meta)
-    if dataclasses.is_dataclass(tp):
-        if hasattr(tp, "from_toml"):
-            return tp.from_toml(value, path)
-        if not isinstance(value, dict):
-            raise ConfigError(f"{path}: expected a table, got {type(value).__name__} {value!r}")
-        return parse(tp, value, path)
-    if origin is tuple:
-        args = typing.get_args(tp)
-        if not isinstance(value, list):
-            raise ConfigError(f"{path}: expected a list, got {type(value).__name__} {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{path}[{i}]", meta) for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(f"{path}: expected a list of {len(args)} values, got {len(value)}")
-        return tuple(_convert(a, v, f"{path}[{i}]", meta) for i, (a, v) in enumerate(zip(args, value)))
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path}: expected a number, got {type(value).__name__} {value!r}")
-        value = float(value)
-    elif tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{path}: expected an integer, got {type(value).__name__} {value!r}")
-    elif tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{path}: expected true or false, got {value!r}")
-    elif tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{path}: expected a string, got {type(value).__name__} {value!r}")
-    else:
-        raise TypeError(f"unsupported configuration type {_type_name(tp)} at {path}")
-    _check_range(value, meta, path)
-    return value
+def _first(errors: list) -> dict:
+    """The error to report: the first, unless a table on its path has an unknown key (reported first)."""
+    loc = tuple(errors[0]["loc"])
+    return next((e for e in errors if e["type"] == "extra_forbidden" and loc[:len(e["loc"]) - 1] == e["loc"][:-1]),
+                errors[0])
+
+
+def _validate(cls, data, prefix: str = ""):
+    """``cls.model_validate(data)``; a failure is a :class:`ConfigError` with ``.key`` and one line."""
+    try:
+        return cls.model_validate(data)
+    except ValidationError as err:
+        key, message = _describe(cls, _first(err.errors()))
+        raise Invalid(_join(prefix, key) or "configuration", message) from None
 
 
 def parse(cls, data: dict, path: str = ""):
-    """Build dataclass ``cls`` from a TOML table, checking keys, types and ranges."""
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    prefix = f"{path}." if path else ""
-    if unknown:
-        raise ConfigError(f"{prefix}{unknown[0]}: unknown key; allowed keys are {', '.join(sorted(fields))}")
-    values = {}
-    for name, field in fields.items():
-        key_path = f"{prefix}{name}"
-        if name in data:
-            values[name] = _convert(hints[name], data[name], key_path, field.metadata or _NO_META)
-        elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
-            raise ConfigError(f"{key_path}: missing required key")
-    obj = cls(**values)
-    check = getattr(obj, "check", None)
-    if check is not None:
-        check(path)
-    return obj
-
-
-def to_dict(obj) -> dict:
-    """The resolved configuration as plain data (for metadata and reports)."""
-    return dataclasses.asdict(obj)
-
-
-def to_json(obj) -> str:
-    return json.dumps(to_dict(obj), sort_keys=True, default=str)
-
-
-def load_toml(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such configuration file")
-    try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    """Section ``cls`` from a TOML table (a dict); errors name the key below ``path``."""
+    return _validate(cls, data, path)
 
 
 # --------------------------------------------------------------------------------------------
 # Plant sections
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class ActuatorConfig:
+class ActuatorConfig(Section):
     supply_pressure_pa: float = spec(2.07e7, lo=0.0, lo_open=True, doc="hydraulic supply pressure dP")
     ref_pressure_pa: float | None = spec(None, lo=0.0, lo_open=True, doc="dP_ref; default: equal to dP")
     piston_area_m2: float = spec(2.272e-3, lo=0.0, lo_open=True)
@@ -165,37 +233,20 @@ class ActuatorConfig:
     kd_n_s2_m2: float = spec(5.6e5, lo=0.0)
     max_deflection_deg: float = spec(25.0, lo=0.0, hi=60.0, lo_open=True)
 
-    def params(self) -> actuator.ActuatorParams:
-        return actuator.ActuatorParams(
-            supply_pressure_pa=self.supply_pressure_pa,
-            ref_pressure_pa=self.ref_pressure_pa or self.supply_pressure_pa,
-            piston_area_m2=self.piston_area_m2,
-            r_arm_m=self.r_arm_m,
-            max_current_a=self.max_current_ma * 1e-3,
-            kci_m_s_a=self.kci_mm_s_per_ma,
-            kp_a_m=self.kp_ma_per_mm,
-            kd_n_s2_m2=self.kd_n_s2_m2,
-            max_deflection_rad=math.radians(self.max_deflection_deg),
-        )
 
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class HingeConfig:
+class HingeConfig(Section):
     area_m2: float = spec(1.93, lo=0.0, lo_open=True)
     chord_m: float = spec(0.58, lo=0.0, lo_open=True)
     ch0: float = spec(0.0, lo=-1.0, hi=1.0)
     ch_alpha_per_rad: float = spec(-0.06, lo=-2.0, hi=2.0)
     ch_delta_per_rad: float = spec(-0.25, lo=-2.0, hi=2.0)
 
-    def surface(self) -> hinge.HingeSurface:
-        return hinge.HingeSurface(self.area_m2, self.chord_m, self.ch0, self.ch_alpha_per_rad, self.ch_delta_per_rad)
 
 
 AIRCRAFT_MODELS = ("roll_axis", "rcam")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class AircraftConfig:
+class AircraftConfig(Section):
     wing_area_m2: float = spec(260.0, lo=0.0, lo_open=True)
     mean_chord_m: float = spec(6.6, lo=0.0, lo_open=True)
     span_m: float = spec(44.8, lo=0.0, lo_open=True)
@@ -203,79 +254,54 @@ class AircraftConfig:
     roll_inertia_kg_m2: float = spec(4.81e6, lo=0.0, lo_open=True)
     monitored_share: float = spec(0.5, lo=0.0, hi=1.0, doc="share of roll power of the monitored aileron")
     max_mach: float = spec(0.82, lo=0.1, hi=0.95, doc="flight points above this Mach number are refused")
-    model: str = spec("roll_axis", choices=AIRCRAFT_MODELS, doc="roll_axis: the fast roll axis at a fixed flight "
-                      "point; rcam: the GARTEUR RCAM 6-DoF aircraft in closed loop (Vcas, h and alpha vary in a run)")
-
-    def params(self) -> aircraft.AircraftParams:
-        return aircraft.AircraftParams(
-            wing_area_m2=self.wing_area_m2, mean_chord_m=self.mean_chord_m, span_m=self.span_m,
-            mass_kg=self.mass_kg, roll_inertia_kg_m2=self.roll_inertia_kg_m2,
-            monitored_share=self.monitored_share)
+    model: Literal[AIRCRAFT_MODELS] = spec("roll_axis", doc="roll_axis: the fast roll axis at a fixed flight "
+                                           "point; rcam: the GARTEUR RCAM 6-DoF aircraft in closed loop (Vcas, h and alpha vary in a run)")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class ControlLawConfig:
+class ControlLawConfig(Section):
     max_roll_rate_deg_s: float = spec(15.0, lo=0.0, lo_open=True)
     bank_hold_deg: float = spec(33.0, lo=0.0, hi=90.0)
     bank_protection_deg: float = spec(67.0, lo=0.0, hi=90.0)
     time_constant_s: float = spec(0.5, lo=0.05, hi=10.0)
 
-    def params(self) -> control_law.RollLawParams:
-        return control_law.RollLawParams(
-            max_roll_rate_rad_s=math.radians(self.max_roll_rate_deg_s), bank_hold_rad=math.radians(self.bank_hold_deg),
-            bank_protection_rad=math.radians(self.bank_protection_deg), time_constant_s=self.time_constant_s)
 
-
-VCAS_RANGE_KT = (80.0, 420.0)
-ALTITUDE_RANGE_M = (0.0, 12500.0)
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class PlantConfig:
+class PlantConfig(Section):
     actuator: ActuatorConfig = spec(ActuatorConfig())
     hinge: HingeConfig = spec(HingeConfig())
     aircraft: AircraftConfig = spec(AircraftConfig())
     control_law: ControlLawConfig = spec(ControlLawConfig())
 
-    def model(self) -> closed_loop.PlantModel:
-        return closed_loop.build_model(
-            self.actuator.params(), self.aircraft.params(), self.control_law.params(), self.hinge.surface(),
-            vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in VCAS_RANGE_KT), altitude_range_m=ALTITUDE_RANGE_M,
-            aircraft_model=self.aircraft.model)
-
-    def check_manoeuvres(self, kinds, path: str):
-        """Refuse manoeuvre families that the roll axis cannot fly."""
+    def check_manoeuvres(self, kinds, key: str):
+        """Refuse manoeuvre families that the roll axis cannot fly (raises :class:`Invalid` at ``key``)."""
         if self.aircraft.model == "rcam":
             return
         for kind in kinds:
             if kind in manoeuvres.FULL_AIRCRAFT:
-                raise ConfigError(f"{path}: {kind!r} needs the full aircraft; set plant.aircraft.model = \"rcam\"")
+                raise Invalid(key, f"{kind!r} needs the full aircraft; set plant.aircraft.model = \"rcam\"")
 
-    def check_flight_point(self, vcas_kt: float, altitude_m: float, path: str):
-        """Refuse a flight point above the Mach limit."""
+    def check_flight_point(self, vcas_kt: float, altitude_m: float, key: str):
+        """Refuse a flight point above the Mach limit (raises :class:`Invalid` at ``key``)."""
         m = float(atmosphere.mach(vcas_kt * atmosphere.KT_TO_M_S, altitude_m))
         if m > self.aircraft.max_mach:
-            raise ConfigError(f"{path}: {vcas_kt} kt at {altitude_m} m is Mach {m:.3f}, above the limit "
-                              f"plant.aircraft.max_mach = {self.aircraft.max_mach}")
+            raise Invalid(key, f"{vcas_kt} kt at {altitude_m} m is Mach {m:.3f}, above the limit "
+                               f"plant.aircraft.max_mach = {self.aircraft.max_mach}")
 
 
 # --------------------------------------------------------------------------------------------
 # Scenario sections
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class FaultConfig:
-    kind: str = spec("none", choices=space.FAULT_KINDS)
+class FaultConfig(Section):
+    kind: Literal[FAULT_KINDS] = spec("none")
     size: float = spec(0.0, lo=0.0, hi=1.0, doc="leakage: pressure loss 1 - nu1; surface_damage: 1 - nu2")
     onset_s: float = spec(10.0, lo=0.0)
 
-    def check(self, path):
+    def check(self):
         if self.kind == "leakage" and self.size >= 1.0:
-            raise ConfigError(f"{path}.size: {self.size} leaves no pressure (nu1 = 0); leakage size must be below 1")
+            raise Invalid("size", f"{self.size} leaves no pressure (nu1 = 0); leakage size must be below 1")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class ManoeuvreConfig:
-    kind: str = spec("quiet", choices=manoeuvres.KINDS)
+class ManoeuvreConfig(Section):
+    kind: Literal[manoeuvres.KINDS] = spec("quiet")
     amplitude: float = spec(0.0, lo=-1.0, hi=1.0, doc="stick or command fraction; sign gives the direction")
     t_start_s: float = spec(5.0, lo=0.0)
     duration_s: float = spec(2.0, lo=0.0, lo_open=True)
@@ -290,12 +316,11 @@ class ManoeuvreConfig:
     delta_vcas_kt: float = spec(0.0, lo=-100.0, hi=100.0, doc="speed_change: autothrust speed-target step")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class RunConfig:
+class RunConfig(Section):
     name: str = spec()
     vcas_kt: float = spec(250.0, lo=VCAS_RANGE_KT[0], hi=VCAS_RANGE_KT[1])
     altitude_m: float = spec(3000.0, lo=ALTITUDE_RANGE_M[0], hi=ALTITUDE_RANGE_M[1])
-    turbulence: str = spec("light", choices=tuple(turbulence.LEVELS))
+    turbulence: Literal[TURBULENCE_LEVELS] = spec("light")
     noise_std_mm: float = spec(0.05, lo=0.0, hi=5.0)
     supply_pressure_scale: float = spec(1.0, lo=0.5, hi=1.5)
     kci_scale: float = spec(1.0, lo=0.5, hi=1.5)
@@ -306,42 +331,21 @@ class RunConfig:
     fault: FaultConfig = spec(FaultConfig())
     manoeuvre: ManoeuvreConfig = spec(ManoeuvreConfig())
 
-    def columns(self) -> dict:
-        """The run as a row of a scenario table (see :mod:`mcfdd.analysis.scenarios`)."""
-        m = self.manoeuvre
-        return {
-            "vcas_kt": self.vcas_kt, "altitude_m": self.altitude_m, "supply_pressure_scale": self.supply_pressure_scale,
-            "kci_scale": self.kci_scale, "kd_scale": self.kd_scale, "hinge_scale": self.hinge_scale,
-            "roll_inertia_scale": self.roll_inertia_scale, "mass_scale": self.mass_scale,
-            "noise_std_mm": self.noise_std_mm,
-            "turbulence": self.turbulence, "fault_kind": self.fault.kind, "fault_size": self.fault.size,
-            "fault_onset_s": self.fault.onset_s, "manoeuvre_kind": m.kind, "amplitude": m.amplitude,
-            "t_start_s": m.t_start_s, "duration_s": m.duration_s, "hold_s": m.hold_s, "ramp_s": m.ramp_s,
-            "freq_lo_hz": m.freq_lo_hz, "freq_hi_hz": m.freq_hi_hz, "sideslip_deg": m.sideslip_deg,
-            "fpa_deg": m.fpa_deg, "heading_change_deg": m.heading_change_deg, "bank_deg": m.bank_deg,
-            "delta_vcas_kt": m.delta_vcas_kt,
-        }
-
 
 # --------------------------------------------------------------------------------------------
 # FDD sections. Residual thresholds and signal levels are in degrees of surface deflection
 # (rod position / r_arm); the FDD itself works on rod positions in m.
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class EvaluatorConfig:
+class EvaluatorConfig(Section):
     """Narendra evaluator of eq. (14)."""
 
     alpha: float = spec(0.0, lo=0.0, doc="weight of |r|")
     beta: float = spec(1.0, lo=0.0, doc="weight of the forgetting integral of |r|")
     gamma_1_s: float = spec(0.1, lo=0.0, lo_open=True, hi=1000.0, doc="forgetting factor")
 
-    def params(self) -> evaluator.NarendraParams:
-        return evaluator.NarendraParams(self.alpha, self.beta, self.gamma_1_s)
 
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LoeDetectionConfig:
+class LoeDetectionConfig(Section):
     """Model-detection bank for parametric LOE faults (Section 4).
 
     Defaults are tuned for 0.05 mm position-sensor noise (see README): the paper's evaluator
@@ -373,8 +377,7 @@ class LoeDetectionConfig:
                                "and this long after")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SignalRulesConfig:
+class SignalRulesConfig(Section):
     """Signal-based stall identification, eqs. (32)-(35)."""
 
     rate_min_deg_s: float = spec(2.0, lo=0.0, lo_open=True, doc="u_dot_min of (33)")
@@ -385,8 +388,7 @@ class SignalRulesConfig:
     error_min_deg: float = spec(0.5, lo=0.0, doc="smallest |u_c - u| for which (35) counts")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class ModelRuleConfig:
+class ModelRuleConfig(Section):
     """Stall identification by model detection with Q_sl, eq. (30).
 
     The residual left by the motion just before a stall decays at the pole a_sl, so a_sl sets the
@@ -403,60 +405,36 @@ class ModelRuleConfig:
     tau_deg: float = spec(15.0, lo=0.0, lo_open=True, doc="tau_sl: stall while theta_sl stays below")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class StallDetectionConfig:
+class StallDetectionConfig(Section):
     """Stall-load detector (Section 5; paper evaluator alpha = beta = 1, gamma = 0.1)."""
 
     pole_1_s: float = spec(10.0, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of eq. (20)")
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=1.0, beta=1.0, gamma_1_s=0.1))
     tau_deg: float = spec(1.0, lo=0.0, lo_open=True, doc="threshold tau of eq. (25)")
-    identification: str = spec("signal", choices=("signal", "model"), doc="which eta is eta_stall")
+    identification: Literal["signal", "model"] = spec("signal", doc="which eta is eta_stall")
     signal: SignalRulesConfig = spec(SignalRulesConfig())
     model: ModelRuleConfig = spec(ModelRuleConfig())
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class FddConfig:
+class FddConfig(Section):
     bank: str = spec("default", doc="LPV bank JSON file, or 'default' for the bank shipped with mcfdd")
     loe: LoeDetectionConfig = spec(LoeDetectionConfig())
     stall: StallDetectionConfig = spec(StallDetectionConfig())
 
-    def params(self, bank: lpv.GainBank, r_arm_m: float) -> system.FddParams:
-        """FDD parameters in rod units for an actuator with lever arm ``r_arm_m``."""
-        deg = math.radians(1.0) * r_arm_m
-        loe, stl = self.loe, self.stall
-        return system.FddParams(
-            loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=loe.evaluator.params(), tau=loe.tau,
-                                 tau_schedule=loe.tau_schedule, detection_tau=loe.detection_tau,
-                                 detection_confirm_s=loe.detection_confirm_s,
-                                 excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
-                                 max_load_fraction=loe.max_load_fraction,
-                                 linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
-            stall=system.StallParams(
-                pole=stl.pole_1_s, evaluator=stl.evaluator.params(), tau=stl.tau_deg * deg,
-                signal=stall.SignalRules(stl.signal.rate_min_deg_s * deg, stl.signal.command_min_deg * deg,
-                                         stl.signal.position_min_deg * deg, stl.signal.window_s,
-                                         stl.signal.error_min_deg * deg),
-                model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, stl.model.evaluator.params(),
-                                      stl.model.tau_deg * deg)),
-        )
 
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SimulationConfig:
+class SimulationConfig(Section):
     duration_s: float = spec(30.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
     substeps: int = spec(2, lo=1, hi=64, doc="actuator sub-steps per sample in the linear range of the valve")
     seed: int = spec(0, lo=0)
-    precision: str = spec("float32", choices=("float32", "float64"))
+    precision: Literal[PRECISIONS] = spec("float32")
 
     @property
     def n_steps(self) -> int:
         return int(round(self.duration_s / self.dt_s))
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SimulateConfig:
+class SimulateConfig(Section):
     """``mcfdd simulate``: a few named runs simulated in one batch, full time histories."""
 
     simulation: SimulationConfig = spec(SimulationConfig())
@@ -464,20 +442,22 @@ class SimulateConfig:
     fdd: FddConfig = spec(FddConfig())
     runs: tuple[RunConfig, ...] = spec()
 
-    def check(self, path):
+    def check(self):
         if not self.runs:
-            raise ConfigError("runs: at least one [[runs]] table is required")
-        names = [r.name for r in self.runs]
-        for i, name in enumerate(names):
-            if names.index(name) != i:
-                raise ConfigError(f"runs[{i}].name: {name!r} is used by runs[{names.index(name)}] already")
+            raise Invalid("runs", "at least one [[runs]] table is required")
+        _check_unique([r.name for r in self.runs], "runs")
         for i, run in enumerate(self.runs):
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
             self.plant.check_manoeuvres([run.manoeuvre.kind], f"runs[{i}].manoeuvre.kind")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SweepConfig:
+def _check_unique(names, key):
+    for i, name in enumerate(names):
+        if names.index(name) != i:
+            raise Invalid(f"{key}[{i}].name", f"{name!r} is used by {key}[{names.index(name)}] already")
+
+
+class SweepConfig(Section):
     """``mcfdd figures`` Fig. 4: fault-size sweeps at one flight point and manoeuvre."""
 
     simulation: SimulationConfig = spec(SimulationConfig())
@@ -488,41 +468,132 @@ class SweepConfig:
     leakage_points: int = spec(31, lo=2, hi=1001, doc="pressure losses from 0 to max_leakage")
     max_leakage: float = spec(0.3, lo=0.0, lo_open=True, hi=0.95)
 
-    def check(self, path):
+    def check(self):
         self.plant.check_flight_point(self.run.vcas_kt, self.run.altitude_m, "run")
         self.plant.check_manoeuvres([self.run.manoeuvre.kind], "run.manoeuvre.kind")
-
-    def table(self) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
-        """Scenario columns of both sweeps, run names, family ('surface'/'leakage') and size per run."""
-        surface = np.linspace(0.0, 1.0, self.surface_points)
-        leakage = np.linspace(0.0, self.max_leakage, self.leakage_points)
-        base = self.run.columns()
-        n = len(surface) + len(leakage)
-        table = {k: np.full(n, v) for k, v in base.items()}
-        table["fault_kind"] = np.array(["surface_damage"] * len(surface) + ["leakage"] * len(leakage))
-        table["fault_size"] = np.concatenate([surface, leakage])
-        family = np.array(["surface"] * len(surface) + ["leakage"] * len(leakage))
-        names = [f"{f}-{100 * v:.1f}pct" for f, v in zip(family, table["fault_size"])]
-        return table, names, family, table["fault_size"]
 
 
 # --------------------------------------------------------------------------------------------
 # Campaigns
 
-# Each scenario-table column is checked against the range of the matching single-run key.
-_COLUMN_FIELDS = {
-    **{f.name: (RunConfig, f.name) for f in dataclasses.fields(RunConfig) if f.name not in ("name", "fault", "manoeuvre")},
-    "fault_kind": (FaultConfig, "kind"), "fault_onset_s": (FaultConfig, "onset_s"),
-    "leakage_size": (FaultConfig, "size"), "surface_damage_size": (FaultConfig, "size"),
-    "manoeuvre_kind": (ManoeuvreConfig, "kind"),
-    **{f.name: (ManoeuvreConfig, f.name) for f in dataclasses.fields(ManoeuvreConfig) if f.name != "kind"},
-}
-_SIZE_COLUMNS = {"leakage_size": "leakage", "surface_damage_size": "surface_damage"}
-
 
 @dataclasses.dataclass(frozen=True)
-class SpaceConfig:
-    """Scenario space: one axis per table column.
+class Axis:
+    """One column of a scenario space.
+
+    kind: 'const' (``values[0]``), 'range' (uniform on [lo, hi]; ``n`` points when gridded),
+    'values' (discrete numbers) or 'choices' (names).
+    """
+
+    name: str
+    kind: str
+    values: tuple = ()
+    lo: float = 0.0
+    hi: float = 0.0
+    n: int = 0
+
+    def grid_values(self) -> tuple:
+        if self.kind == "range":
+            return tuple(np.linspace(self.lo, self.hi, self.n)) if self.n > 1 else (self.lo,)
+        return self.values
+
+    def from_unit(self, u):
+        """Map uniform numbers in [0, 1) to axis values."""
+        if self.kind == "range":
+            return self.lo + u * (self.hi - self.lo)
+        options = np.asarray(self.values)
+        return options[np.minimum((u * len(options)).astype(int), len(options) - 1)]
+
+    def toml(self):
+        """The axis as written in a [space] table."""
+        if self.kind == "const":
+            return self.values[0]
+        if self.kind == "choices":
+            return list(self.values)
+        if self.kind == "values":
+            return {"values": list(self.values)}
+        return [self.lo, self.hi] if self.n == 2 else {"range": [self.lo, self.hi], "n": self.n}
+
+
+def _column_types() -> dict:
+    """Each scenario-table column with the type and range of its single-run key."""
+    owners = {**{n: (RunConfig, n) for n in RunConfig.model_fields if n not in ("name", "fault", "manoeuvre")},
+              "fault_kind": (FaultConfig, "kind"), "fault_onset_s": (FaultConfig, "onset_s"),
+              "leakage_size": (FaultConfig, "size"), "surface_damage_size": (FaultConfig, "size"),
+              "manoeuvre_kind": (ManoeuvreConfig, "kind"),
+              **{n: (ManoeuvreConfig, n) for n in ManoeuvreConfig.model_fields if n != "kind"}}
+    types = {}
+    for column, (owner, key) in owners.items():
+        field = owner.model_fields[key]
+        meta = [annotated_types.Ge(0.0), annotated_types.Le(0.95)] if column == "leakage_size" else field.metadata
+        types[column] = Annotated[(field.annotation, *meta)] if meta else field.annotation
+    return types
+
+
+_COLUMN_TYPES = _column_types()
+_COLUMN_ADAPTERS = {name: TypeAdapter(tp, config=ConfigDict(strict=True)) for name, tp in _COLUMN_TYPES.items()}
+SIZE_COLUMNS = {"leakage_size": "leakage", "surface_damage_size": "surface_damage"}
+
+
+def _column_value(name, value, key):
+    try:
+        return _COLUMN_ADAPTERS[name].validate_python(value)
+    except ValidationError as err:
+        sub, message = _describe(_COLUMN_TYPES[name], _first(err.errors()))
+        raise Invalid(_join(key, sub), message) from None
+
+
+def _axis(name, value, key) -> Axis:
+    if name not in _COLUMN_TYPES:
+        raise Invalid(key, f"unknown axis; allowed axes are {', '.join(sorted(_COLUMN_TYPES))}")
+    names = typing.get_origin(_unwrap(_COLUMN_TYPES[name])[0]) is Literal
+    if isinstance(value, dict):
+        extra = sorted(set(value) - {"values", "range", "n"})
+        if extra:
+            raise Invalid(f"{key}.{extra[0]}", "unknown key; an axis table takes values, or range and n")
+        if "values" in value:
+            vals = value["values"]
+            if not isinstance(vals, (list, tuple)) or not vals:
+                raise Invalid(f"{key}.values", "expected a non-empty list")
+            return Axis(name, "values", tuple(_column_value(name, v, f"{key}.values[{i}]") for i, v in enumerate(vals)))
+        if "range" not in value:
+            raise Invalid(key, "an axis table needs 'values' or 'range'")
+        axis = _axis(name, value["range"], f"{key}.range")
+        n = value.get("n", 2)
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise Invalid(f"{key}.n", f"expected a positive integer, got {n!r}")
+        return dataclasses.replace(axis, n=n)
+    if isinstance(value, (list, tuple)):
+        if names:
+            if not value:
+                raise Invalid(key, "expected a non-empty list of names")
+            return Axis(name, "choices", tuple(_column_value(name, v, f"{key}[{i}]") for i, v in enumerate(value)))
+        if len(value) != 2:
+            raise Invalid(key, "a range is [lo, hi]; for discrete values write { values = [...] }")
+        lo, hi = _column_value(name, value[0], f"{key}[0]"), _column_value(name, value[1], f"{key}[1]")
+        if hi < lo:
+            raise Invalid(key, f"range [{lo}, {hi}] is empty")
+        return Axis(name, "range", lo=lo, hi=hi, n=2)
+    return Axis(name, "const", (_column_value(name, value, key),))
+
+
+def _axis_schema(tp) -> dict:
+    """JSON Schema of the axis syntax of one column."""
+    one = TypeAdapter(tp).json_schema()
+    if "enum" in one or "const" in one:
+        return {"anyOf": [one, {"type": "array", "items": one, "minItems": 1}]}
+    pair = {"type": "array", "items": one, "minItems": 2, "maxItems": 2}
+    return {"anyOf": [
+        one, pair,
+        {"type": "object", "properties": {"values": {"type": "array", "items": one, "minItems": 1}},
+         "required": ["values"], "additionalProperties": False},
+        {"type": "object", "properties": {"range": pair, "n": {"type": "integer", "minimum": 1}},
+         "required": ["range"], "additionalProperties": False},
+    ]}
+
+
+class SpaceConfig(Section):
+    """Scenario space: one axis per table column, in the order of the TOML table.
 
     In TOML a key takes a number or a name (constant), ``[lo, hi]`` (uniform range), a list of
     names (choices), ``{ values = [...] }`` (discrete numbers) or ``{ range = [lo, hi], n = 5 }``
@@ -530,86 +601,46 @@ class SpaceConfig:
     (``leakage_size``, ``surface_damage_size``) and combined into ``fault_size``.
     """
 
-    axes: tuple[space.Axis, ...] = ()
+    axes: SkipValidation[tuple[Axis, ...]] = ()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_toml(cls, data):
+        if not isinstance(data, dict):
+            raise Invalid("", "expected a table of axes")
+        return {"axes": tuple(_axis(name, value, name) for name, value in data.items())}
+
+    @model_serializer
+    def _to_toml(self) -> dict:
+        return {a.name: a.toml() for a in self.axes}
 
     @classmethod
-    def from_toml(cls, data, path):
-        if not isinstance(data, dict):
-            raise ConfigError(f"{path}: expected a table of axes")
-        axes = []
-        for name, value in data.items():
-            key = f"{path}.{name}"
-            if name not in _COLUMN_FIELDS:
-                raise ConfigError(f"{key}: unknown axis; allowed axes are {', '.join(sorted(_COLUMN_FIELDS))}")
-            axes.append(_axis(name, value, key))
-        return cls(tuple(axes))
+    def __get_pydantic_json_schema__(cls, core_schema, handler):
+        return {"type": "object", "title": cls.__name__, "description": cls.__doc__.splitlines()[0],
+                "properties": {name: _axis_schema(tp) for name, tp in _COLUMN_TYPES.items()},
+                "additionalProperties": False}
 
     def axis(self, name):
         return next((a for a in self.axes if a.name == name), None)
 
 
-def _field_meta(name):
-    owner, field_name = _COLUMN_FIELDS[name]
-    field = next(f for f in dataclasses.fields(owner) if f.name == field_name)
-    return typing.get_type_hints(owner)[field_name], dict(field.metadata)
-
-
-def _axis(name, value, path) -> space.Axis:
-    tp, meta = _field_meta(name)
-    if name == "leakage_size":
-        meta["hi"] = 0.95
-    def one(v, p):
-        return _convert(tp, v, p, meta)
-
-    if isinstance(value, dict):
-        extra = sorted(set(value) - {"values", "range", "n"})
-        if extra:
-            raise ConfigError(f"{path}.{extra[0]}: unknown key; an axis table takes values, or range and n")
-        if "values" in value:
-            vals = value["values"]
-            if not isinstance(vals, list) or not vals:
-                raise ConfigError(f"{path}.values: expected a non-empty list")
-            return space.Axis(name, "values", tuple(one(v, f"{path}.values[{i}]") for i, v in enumerate(vals)))
-        if "range" not in value:
-            raise ConfigError(f"{path}: an axis table needs 'values' or 'range'")
-        axis = _axis(name, value["range"], f"{path}.range")
-        n = value.get("n", 2)
-        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise ConfigError(f"{path}.n: expected a positive integer, got {n!r}")
-        return dataclasses.replace(axis, n=n)
-    if isinstance(value, list):
-        if tp is str:
-            if not value:
-                raise ConfigError(f"{path}: expected a non-empty list of names")
-            return space.Axis(name, "choices", tuple(one(v, f"{path}[{i}]") for i, v in enumerate(value)))
-        if len(value) != 2:
-            raise ConfigError(f"{path}: a range is [lo, hi]; for discrete values write {{ values = [...] }}")
-        lo, hi = one(value[0], f"{path}[0]"), one(value[1], f"{path}[1]")
-        if hi < lo:
-            raise ConfigError(f"{path}: range [{lo}, {hi}] is empty")
-        return space.Axis(name, "range", lo=lo, hi=hi, n=2)
-    return space.Axis(name, "const", (one(value, path),))
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class CampaignSettings:
+class CampaignSettings(Section):
     scenarios: int = spec(1000, lo=1, hi=10_000_000, doc="samples (times the grid cells when axes are gridded)")
-    design: str = spec("sobol", choices=space.DESIGNS)
+    design: Literal[DESIGNS] = spec("sobol")
     grid: tuple[str, ...] = spec((), doc="axes on a full grid, crossed with samples over the others")
     seed: int = spec(0, lo=0)
     chunk_size: int = spec(1024, lo=1, hi=1_000_000)
     duration_s: float = spec(60.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
-    substeps: int = spec(2, lo=1, hi=64)
-    precision: str = spec("float32", choices=("float32", "float64"))
+    substeps: int = spec(2, lo=1, hi=64, doc="actuator sub-steps per sample in the linear range of the valve")
+    precision: Literal[PRECISIONS] = spec("float32")
 
     @property
     def n_steps(self) -> int:
         return int(round(self.duration_s / self.dt_s))
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class EvaluationConfig:
+class EvaluationConfig(Section):
     """How runs are scored (DESIGN.md section 5)."""
 
     settle_s: float = spec(5.0, lo=0.0, doc="decisions before this are not scored")
@@ -619,13 +650,14 @@ class EvaluationConfig:
     stall_min_error_deg: float = spec(1.0, lo=0.0, doc="stall events whose tracking error stays below are not relevant")
     stall_window_s: float = spec(0.5, lo=0.0, lo_open=True, doc="required stall detection/identification time")
 
-    def settings(self, r_arm_m: float) -> campaign_sim.Settings:
-        return campaign_sim.Settings(self.settle_s, self.t_detec_s, self.stall_grace_s, self.stall_min_duration_s,
-                                 math.radians(self.stall_min_error_deg) * r_arm_m, self.stall_window_s)
+
+def _default(column):
+    """Default value of a scenario column: its single-run key's default."""
+    owner = FaultConfig if column == "fault_kind" else RunConfig
+    return owner.model_fields["kind" if column == "fault_kind" else column].default
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class CampaignConfig:
+class CampaignConfig(Section):
     """``mcfdd campaign``: a scenario space sampled, simulated in chunks and scored."""
 
     campaign: CampaignSettings = spec(CampaignSettings())
@@ -634,48 +666,24 @@ class CampaignConfig:
     fdd: FddConfig = spec(FddConfig())
     space: SpaceConfig = spec(SpaceConfig())
 
-    def check(self, path):
+    def check(self):
         for i, name in enumerate(self.campaign.grid):
             axis = self.space.axis(name)
             if axis is None or axis.kind == "const":
-                raise ConfigError(f"campaign.grid[{i}]: {name!r} is not a varying axis of [space]")
-        vcas = self.space.axis("vcas_kt") or space.Axis("vcas_kt", "const", (space.DEFAULTS["vcas_kt"],))
-        alt = self.space.axis("altitude_m") or space.Axis("altitude_m", "const", (space.DEFAULTS["altitude_m"],))
+                raise Invalid(f"campaign.grid[{i}]", f"{name!r} is not a varying axis of [space]")
+        vcas = self.space.axis("vcas_kt") or Axis("vcas_kt", "const", (_default("vcas_kt"),))
+        alt = self.space.axis("altitude_m") or Axis("altitude_m", "const", (_default("altitude_m"),))
         self.plant.check_flight_point(min(vcas.grid_values()), max(alt.grid_values()),
                                       "space: the lowest vcas_kt at the highest altitude_m")
         kinds = self.space.axis("manoeuvre_kind")
         self.plant.check_manoeuvres(kinds.grid_values() if kinds else (), "space.manoeuvre_kind")
-
-    def design(self):
-        """Scenario columns of the design (dict of arrays) and their number of rows."""
-        c = self.campaign
-        cols, n = space.design_table(list(self.space.axes), c.scenarios, c.design, c.seed, c.grid,
-                                         self.plant.aircraft.max_mach)
-        kind = np.asarray(cols["fault_kind"])
-        size = np.zeros(n)
-        for column, fault in _SIZE_COLUMNS.items():
-            if column in cols:
-                size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
-        if any(c in {a.name for a in self.space.axes} for c in _SIZE_COLUMNS):
-            cols["fault_size"] = size
-        return cols, n
-
-
-def load(cls, path):
-    """Parse the TOML file at ``path`` into dataclass ``cls``; errors name the file and key."""
-    data = load_toml(path)
-    try:
-        return parse(cls, data)
-    except ConfigError as err:
-        raise ConfigError(f"{path}: {err}") from None
 
 
 # --------------------------------------------------------------------------------------------
 # LPV fitting (``mcfdd fit-lpv``)
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LpvModelConfig:
+class LpvModelConfig(Section):
     """One fault model nu = (nu1, nu2) of the bank."""
 
     name: str = spec()
@@ -684,40 +692,27 @@ class LpvModelConfig:
 
 
 PAPER_LPV_MODELS = tuple(LpvModelConfig(name=name, nu1=nu1, nu2=nu2) for name, (nu1, nu2) in lpv.PAPER_MODELS)
+_VCAS = bounded(*VCAS_RANGE_KT)
+_ALTITUDE = bounded(*ALTITUDE_RANGE_M)
+_GRID = bounded(2, 100, tp=int)
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LpvEnvelopeConfig:
+class LpvEnvelopeConfig(Section):
     """Flight points: a training grid and held-out validation points, all below the Mach limit."""
 
-    vcas_kt: tuple[float, float] = spec((100.0, 350.0), lo=VCAS_RANGE_KT[0], hi=VCAS_RANGE_KT[1])
-    altitude_m: tuple[float, float] = spec((0.0, 12000.0), lo=ALTITUDE_RANGE_M[0], hi=ALTITUDE_RANGE_M[1])
-    grid: tuple[int, int] = spec((6, 4), lo=2, hi=100, doc="training points: Vcas x altitude grid")
+    vcas_kt: tuple[_VCAS, _VCAS] = spec((100.0, 350.0))
+    altitude_m: tuple[_ALTITUDE, _ALTITUDE] = spec((0.0, 12000.0))
+    grid: tuple[_GRID, _GRID] = spec((6, 4), doc="training points: Vcas x altitude grid")
     validation_points: int = spec(8, lo=1, hi=10000, doc="validation points drawn in the envelope (Latin hypercube)")
 
-    def check(self, path):
+    def check(self):
         for key in ("vcas_kt", "altitude_m"):
             lo, hi = getattr(self, key)
             if not lo < hi:
-                raise ConfigError(f"{path}.{key}: range [{lo}, {hi}] is empty")
-
-    def training_points(self, max_mach: float):
-        """Training flight points (Vcas m/s, h m), two flat arrays."""
-        from mcfdd.analysis import lpv_fit
-
-        return lpv_fit.envelope_grid(np.linspace(*self.vcas_kt, self.grid[0]) * atmosphere.KT_TO_M_S,
-                                     np.linspace(*self.altitude_m, self.grid[1]), max_mach)
-
-    def validation_flight_points(self, max_mach: float, seed: int):
-        """Held-out flight points (Vcas m/s, h m), drawn with ``seed``."""
-        axes = [space.Axis("vcas_kt", "range", lo=self.vcas_kt[0], hi=self.vcas_kt[1]),
-                space.Axis("altitude_m", "range", lo=self.altitude_m[0], hi=self.altitude_m[1])]
-        cols, _ = space.design_table(axes, self.validation_points, "lhs", seed, max_mach=max_mach)
-        return cols["vcas_kt"] * atmosphere.KT_TO_M_S, cols["altitude_m"]
+                raise Invalid(key, f"range [{lo}, {hi}] is empty")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LpvRunsConfig:
+class LpvRunsConfig(Section):
     """Open-loop runs of the nonlinear actuator alone."""
 
     duration_s: float = spec(15.0, lo=0.0, lo_open=True, hi=600.0)
@@ -733,8 +728,7 @@ class LpvRunsConfig:
         return int(round(self.duration_s / self.dt_s))
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LpvOptimiserConfig:
+class LpvOptimiserConfig(Section):
     """Adam on the output error, step decaying exponentially over the iterations."""
 
     iterations: int = spec(100, lo=1, hi=100000)
@@ -745,12 +739,11 @@ class LpvOptimiserConfig:
 _OPEN_LOOP_KINDS = tuple(k for k in manoeuvres.KINDS if k.startswith("ol_"))
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LpvFitConfig:
+class LpvFitConfig(Section):
     """``mcfdd fit-lpv``: LPV gain models fitted by output error to the nonlinear actuator."""
 
     seed: int = spec(0, lo=0, doc="draws the validation flight points")
-    precision: str = spec("float64", choices=("float32", "float64"))
+    precision: Literal[PRECISIONS] = spec("float64")
     exact_disconnection: bool = spec(False, doc="models with nu2 = 0 take the exact gain of eq. (36), unfitted")
     plant: PlantConfig = spec(PlantConfig())
     models: tuple[LpvModelConfig, ...] = spec(PAPER_LPV_MODELS)
@@ -760,65 +753,50 @@ class LpvFitConfig:
     training: tuple[ManoeuvreConfig, ...] = spec()
     validation: tuple[ManoeuvreConfig, ...] = spec()
 
-    def check(self, path):
+    def check(self):
         if not self.models:
-            raise ConfigError("models: at least one [[models]] table is required")
-        names = [m.name for m in self.models]
-        for i, name in enumerate(names):
-            if names.index(name) != i:
-                raise ConfigError(f"models[{i}].name: {name!r} is used by models[{names.index(name)}] already")
+            raise Invalid("models", "at least one [[models]] table is required")
+        _check_unique([m.name for m in self.models], "models")
         for key in ("training", "validation"):
             runs = getattr(self, key)
             if not runs:
-                raise ConfigError(f"{key}: at least one [[{key}]] manoeuvre is required")
+                raise Invalid(key, f"at least one [[{key}]] manoeuvre is required")
             for i, m in enumerate(runs):
                 if m.kind not in _OPEN_LOOP_KINDS:
-                    raise ConfigError(f"{key}[{i}].kind: {m.kind!r} is not an open-loop command; expected one of "
-                                      f"{', '.join(_OPEN_LOOP_KINDS)}")
+                    raise Invalid(f"{key}[{i}].kind", f"{m.kind!r} is not an open-loop command; expected one of "
+                                                      f"{', '.join(_OPEN_LOOP_KINDS)}")
                 if m.amplitude == 0.0:
-                    raise ConfigError(f"{key}[{i}].amplitude: must not be 0 (errors are relative to the amplitude)")
+                    raise Invalid(f"{key}[{i}].amplitude", "must not be 0 (errors are relative to the amplitude)")
                 end = m.t_start_s + (2.0 if m.kind == "ol_doublet" else 1.0) * m.duration_s
                 if end > self.runs.duration_s:
-                    raise ConfigError(f"{key}[{i}]: ends at {end} s, after runs.duration_s = {self.runs.duration_s}")
+                    raise Invalid(f"{key}[{i}]", f"ends at {end} s, after runs.duration_s = {self.runs.duration_s}")
         if self.optimiser.final_learning_rate > self.optimiser.learning_rate:
-            raise ConfigError("optimiser.final_learning_rate: must not exceed optimiser.learning_rate")
-        v, _ = self.envelope.training_points(self.plant.aircraft.max_mach)
-        if len(v) < 3:
-            raise ConfigError(f"envelope: only {len(v)} training grid point(s) are below the Mach limit "
-                              f"plant.aircraft.max_mach = {self.plant.aircraft.max_mach}; at least 3 are needed")
-
-    def nus(self) -> np.ndarray:
-        """Fault parameters (N, 2) of the models."""
-        return np.array([(m.nu1, m.nu2) for m in self.models])
+            raise Invalid("optimiser.final_learning_rate", "must not exceed optimiser.learning_rate")
+        env, max_mach = self.envelope, self.plant.aircraft.max_mach
+        below = atmosphere.below_mach(np.linspace(*env.vcas_kt, env.grid[0]) * atmosphere.KT_TO_M_S,
+                                      np.linspace(*env.altitude_m, env.grid[1]), max_mach)
+        if below.sum() < 3:
+            raise Invalid("envelope", f"only {below.sum()} training grid point(s) are below the Mach limit "
+                                      f"plant.aircraft.max_mach = {max_mach}; at least 3 are needed")
 
     def manoeuvres(self, split: str) -> list[ManoeuvreConfig]:
         """Manoeuvres of ``split`` ('training' or 'validation'), mirrored if runs.both_directions."""
         listed = list(getattr(self, split))
         if self.runs.both_directions:
-            listed += [dataclasses.replace(m, amplitude=-m.amplitude) for m in listed]
+            listed += [m.model_copy(update={"amplitude": -m.amplitude}) for m in listed]
         return listed
-
-    def manoeuvre_params(self, split: str, dtype=np.float64) -> manoeuvres.ManoeuvreParams:
-        """The manoeuvres of :meth:`manoeuvres` as one pytree with a leading axis, SI units."""
-        listed = self.manoeuvres(split)
-        cols = {"manoeuvre_kind": np.array([m.kind for m in listed])}
-        for field in dataclasses.fields(ManoeuvreConfig):
-            if field.name != "kind":
-                cols[field.name] = np.array([getattr(m, field.name) for m in listed])
-        return space.to_scenario(cols, dtype).manoeuvre
 
 
 # --------------------------------------------------------------------------------------------
 # Worst-case search and tuning of the detection bounds (``mcfdd worst-case``, ``mcfdd tune``)
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SearchSettings:
+class SearchSettings(Section):
     """Multi-start projected gradient search of one detection bound, eqs. (26)-(27)."""
 
-    detector: str = spec("stall", choices=("stall", "loe"))
-    bound: str = spec("free", choices=("free", "detect"),
-                      doc="free: tau_f of eq. (26), maximised over fault-free runs; detect: tau_d of eq. (27), minimised")
+    detector: Literal["stall", "loe"] = spec("stall")
+    bound: Literal["free", "detect"] = spec(
+        "free", doc="free: tau_f of eq. (26), maximised over fault-free runs; detect: tau_d of eq. (27), minimised")
     screening: int = spec(64, lo=1, hi=100_000, doc="Sobol points screened; the worst ones start the gradient search")
     starts: int = spec(4, lo=1, hi=10_000)
     iterations: int = spec(20, lo=1, hi=10_000, doc="gradient steps per start")
@@ -829,19 +807,18 @@ class SearchSettings:
 
 def _fault_kinds(space_cfg: SpaceConfig) -> tuple[str, ...]:
     axis = space_cfg.axis("fault_kind")
-    return axis.values if axis else (space.DEFAULTS["fault_kind"],)
+    return axis.values if axis else (_default("fault_kind"),)
 
 
 def _check_as_campaign(cfg: CampaignConfig, section: str):
     """Scenario-space checks of a campaign, with errors naming ``section`` instead of ``campaign``."""
     try:
-        cfg.check("")
-    except ConfigError as err:
-        raise ConfigError(str(err).replace("campaign.", f"{section}.", 1)) from None
+        cfg.check()
+    except Invalid as err:
+        raise Invalid(re.sub(r"^campaign\.", f"{section}.", err.key), err.message) from None
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class WorstCaseConfig:
+class WorstCaseConfig(Section):
     """``mcfdd worst-case``: tau_f or tau_d of one detector by gradient search, against Monte Carlo."""
 
     simulation: SimulationConfig = spec(SimulationConfig(), doc="horizon, sample time and precision of every run; "
@@ -852,34 +829,28 @@ class WorstCaseConfig:
     fdd: FddConfig = spec(FddConfig())
     space: SpaceConfig = spec(SpaceConfig())
 
-    def check(self, path):
+    def check(self):
         s = self.search
         if s.starts > s.screening:
-            raise ConfigError(f"search.starts: {s.starts} exceeds search.screening = {s.screening}")
+            raise Invalid("search.starts", f"{s.starts} exceeds search.screening = {s.screening}")
         if not any(a.kind == "range" for a in self.space.axes):
-            raise ConfigError("space: no continuous axis ([lo, hi]) to search")
+            raise Invalid("space", "no continuous axis ([lo, hi]) to search")
         kinds = _fault_kinds(self.space)
         if s.bound == "free" and set(kinds) != {"none"}:
-            raise ConfigError(f"space.fault_kind: {list(kinds)}; the false-alarm bound (search.bound = 'free') is taken "
-                              f"over fault-free runs, so fault_kind must be \"none\"")
-        if (s.detector, s.bound) == ("loe", "detect") and not set(kinds) <= set(space.PARAMETRIC):
-            raise ConfigError(f"space.fault_kind: {list(kinds)}; the LOE detection bound needs parametric faults, one "
-                              f"of {', '.join(space.PARAMETRIC)}")
-        _check_as_campaign(CampaignConfig(evaluation=self.evaluation, plant=self.plant, fdd=self.fdd, space=self.space),
-                           "search")
-
-    def search_space(self):
-        """The space split for the search (:class:`mcfdd.analysis.worst_case.SearchSpace`)."""
-        from mcfdd.analysis import worst_case
-
-        return worst_case.SearchSpace.from_axes(self.space.axes, self.plant.aircraft.max_mach, _SIZE_COLUMNS)
+            raise Invalid("space.fault_kind", f"{list(kinds)}; the false-alarm bound (search.bound = 'free') is "
+                                              f"taken over fault-free runs, so fault_kind must be \"none\"")
+        if (s.detector, s.bound) == ("loe", "detect") and not set(kinds) <= set(PARAMETRIC):
+            raise Invalid("space.fault_kind", f"{list(kinds)}; the LOE detection bound needs parametric faults, "
+                                              f"one of {', '.join(PARAMETRIC)}")
+        _check_as_campaign(CampaignConfig.model_construct(
+            campaign=CampaignSettings(), evaluation=self.evaluation, plant=self.plant, fdd=self.fdd,
+            space=self.space), "search")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class TuneSettings:
+class TuneSettings(Section):
     """Gradient tuning of one detector's evaluator (and pole) for the largest detection gap."""
 
-    detector: str = spec("stall", choices=("stall", "loe"))
+    detector: Literal["stall", "loe"] = spec("stall")
     iterations: int = spec(60, lo=1, hi=100_000)
     learning_rate: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0, doc="Adam step on the parameters' logarithms")
     temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
@@ -890,8 +861,7 @@ class TuneSettings:
     tune_pole: bool = spec(True, doc="tune the filter pole a besides alpha, beta, gamma")
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class TuneConfig:
+class TuneConfig(Section):
     """``mcfdd tune``: evaluator tuning on a training campaign, checked on a held-out one.
 
     Both campaigns draw from the same [space] with their own settings; they must differ in seed.
@@ -905,18 +875,21 @@ class TuneConfig:
     fdd: FddConfig = spec(FddConfig())
     space: SpaceConfig = spec(SpaceConfig())
 
-    def check(self, path):
+    def check(self):
         if self.validation.seed == self.training.seed:
-            raise ConfigError(f"validation.seed: {self.validation.seed} equals training.seed; the held-out campaign "
-                              f"needs its own seed")
+            raise Invalid("validation.seed", f"{self.validation.seed} equals training.seed; the held-out campaign "
+                                             f"needs its own seed")
         if self.validation.precision != self.training.precision:
-            raise ConfigError(f"validation.precision: {self.validation.precision!r} differs from training.precision "
-                              f"{self.training.precision!r}")
+            raise Invalid("validation.precision", f"{self.validation.precision!r} differs from training.precision "
+                                                  f"{self.training.precision!r}")
         if self.plant.aircraft.model != "roll_axis":
-            raise ConfigError(f"plant.aircraft.model: {self.plant.aircraft.model!r}; mcfdd tune replays stored "
-                              f"histories at each run's initial flight point, so it supports \"roll_axis\" only")
+            raise Invalid("plant.aircraft.model", f"{self.plant.aircraft.model!r}; mcfdd tune replays stored "
+                                                  f"histories at each run's initial flight point, so it supports "
+                                                  f"\"roll_axis\" only")
         for split in ("training", "validation"):
-            _check_as_campaign(self.campaign(split), split)
+            _check_as_campaign(CampaignConfig.model_construct(
+                campaign=getattr(self, split), evaluation=self.evaluation, plant=self.plant, fdd=self.fdd,
+                space=self.space), split)
 
     def campaign(self, split: str, fdd: FddConfig | None = None) -> CampaignConfig:
         """The 'training' or 'validation' campaign, optionally with other FDD settings."""
@@ -924,32 +897,177 @@ class TuneConfig:
                               fdd=fdd or self.fdd, space=self.space)
 
 
+class FddFragment(Section):
+    """A file holding only an [fdd] table (``mcfdd campaign --fdd FILE``, written by ``mcfdd tune``)."""
+
+    fdd: FddConfig = spec()
+
+
+# --------------------------------------------------------------------------------------------
+# Loading, overriding, writing and describing configurations
+
+KINDS = {"simulate": SimulateConfig, "campaign": CampaignConfig, "fit-lpv": LpvFitConfig, "tune": TuneConfig,
+         "worst-case": WorstCaseConfig, "sweep": SweepConfig}
+
+
+def _plain(data):
+    if isinstance(data, dict):
+        return {k: _plain(v) for k, v in data.items()}
+    return [_plain(v) for v in data] if isinstance(data, (list, tuple)) else data
+
+
+def to_dict(obj) -> dict:
+    """The resolved configuration as plain data (tables, lists, scalars); parses back to ``obj``."""
+    return _plain(obj.model_dump())
+
+
+def to_json(obj) -> str:
+    return json.dumps(to_dict(obj), sort_keys=True, default=str)
+
+
+def load_toml(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such configuration file")
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (not valid UTF-8)") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+
+
+def _in_file(path, fn, *args):
+    try:
+        return fn(*args)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from None
+
+
+def load(cls, path):
+    """Parse the TOML file at ``path`` into section ``cls``; errors name the file and key."""
+    return _in_file(path, parse, cls, load_toml(path))
+
+
+def infer_kind(data: dict) -> str:
+    """The config kind whose top-level sections hold every key of ``data`` (and its required ones)."""
+    keys = set(data)
+    fits = [k for k, cls in KINDS.items() if keys <= set(cls.model_fields)]
+    if not fits:
+        known = set().union(*(cls.model_fields for cls in KINDS.values()))
+        bad = sorted(keys - known) or sorted(keys)
+        raise ConfigError(f"{bad[0]}: unknown key; no configuration kind ({', '.join(KINDS)}) has it")
+    complete = [k for k in fits if all(n in keys for n, f in KINDS[k].model_fields.items() if f.is_required())]
+    fits = complete or fits
+    if len(fits) > 1:
+        raise ConfigError(f"kind: the sections {', '.join(sorted(keys)) or '(none)'} fit {', '.join(fits)}; "
+                          f"pass kind= one of them")
+    return fits[0]
+
+
+_PATH_PART = re.compile(r"([^.\[\]]+)|\[(\d+)\]")
+
+
+def _split_path(path: str) -> list:
+    parts = [int(i) if i else name for name, i in _PATH_PART.findall(path)]
+    if not parts or _key_path(parts) != path:
+        raise ConfigError(f"{path!r}: not a key path (expected e.g. campaign.scenarios or runs[1].fault.size)")
+    return parts
+
+
+def _with_overrides(cls, data: dict, overrides: dict) -> dict:
+    """Copy of raw ``data`` with each dotted key path of ``overrides`` set, sections created as needed."""
+    data = copy.deepcopy(data)
+    for path, value in overrides.items():
+        parts = _split_path(path)
+        node, tp = data, cls
+        for i, part in enumerate(parts):
+            where = _key_path(parts[:i + 1])
+            if isinstance(part, str) and _is_section(tp) and tp is not SpaceConfig and part not in tp.model_fields:
+                raise ConfigError(f"{where}: unknown key; allowed keys are {', '.join(sorted(tp.model_fields))}")
+            tp, _ = _target(tp, [part]) if tp is not None else (None, [])
+            last = i == len(parts) - 1
+            if isinstance(part, int):
+                if not isinstance(node, list) or part >= len(node):
+                    raise ConfigError(f"{where}: no such entry ({_key_path(parts[:i])} has "
+                                      f"{len(node) if isinstance(node, list) else 'no'} entries)")
+            elif not isinstance(node, dict):
+                raise ConfigError(f"{_key_path(parts[:i])}: not a table, cannot set {where}")
+            if last:
+                node[part] = copy.deepcopy(value)
+            else:
+                if isinstance(part, str) and part not in node:
+                    node[part] = {}
+                node = node[part]
+    return data
+
+
+def load_config(source, kind: str | None = None, overrides: dict | None = None):
+    """A validated configuration from a TOML file or a dict, with dotted-path overrides.
+
+    Args:
+        source: path of a TOML file, or its content as a dict (not modified).
+        kind: one of :data:`KINDS` ('simulate', 'campaign', 'fit-lpv', 'tune', 'worst-case',
+            'sweep'); inferred from the top-level sections when None.
+        overrides: {key path: value}, e.g. ``{"campaign.scenarios": 256, "fdd.loe.tau": 0.12,
+            "runs[1].fault.size": 0.3}``, applied to the raw data before validation, so a bad
+            value gives the same message as in the file.
+
+    Returns:
+        The frozen config model of the kind.
+
+    >>> cfg = load_config({"campaign": {"scenarios": 8}}, overrides={"fdd.loe.tau": 0.12})
+    >>> type(cfg).__name__, cfg.campaign.scenarios, cfg.fdd.loe.tau
+    ('CampaignConfig', 8, 0.12)
+    """
+    from_file = not isinstance(source, dict)
+    data = load_toml(source) if from_file else source
+    if kind is None:
+        kind = _in_file(source, infer_kind, data) if from_file else infer_kind(data)
+    if kind not in KINDS:
+        raise ConfigError(f"kind: {kind!r} is not allowed; expected one of {', '.join(map(repr, KINDS))}")
+    overrides = overrides or {}
+    merged = _with_overrides(KINDS[kind], data, overrides)
+    try:
+        return parse(KINDS[kind], merged)
+    except Invalid as err:
+        if not from_file or any(err.key == o or err.key.startswith((f"{o}.", f"{o}[")) for o in overrides):
+            raise
+        raise ConfigError(f"{source}: {err}") from None
+
+
+def replace(cfg, changes: dict):
+    """A copy of ``cfg`` with the dotted key paths of ``changes`` set, validated like a file.
+
+    >>> cfg = load_config({"campaign": {"scenarios": 8}})
+    >>> replace(cfg, {"campaign.seed": 3, "fdd.loe.tau": 0.2}).campaign.seed
+    3
+    """
+    return parse(type(cfg), _with_overrides(type(cfg), to_dict(cfg), changes))
+
+
+def json_schema(kind: str) -> dict:
+    """JSON Schema (draft 2020-12) of a configuration kind (one of :data:`KINDS`), for editors and validators.
+
+    >>> schema = json_schema("campaign")
+    >>> sorted(schema["properties"]), schema["additionalProperties"]
+    (['campaign', 'evaluation', 'fdd', 'plant', 'space'], False)
+    """
+    if kind not in KINDS:
+        raise ConfigError(f"kind: {kind!r} is not allowed; expected one of {', '.join(map(repr, KINDS))}")
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **KINDS[kind].model_json_schema()}
+
+
+def _without_none(data):
+    if isinstance(data, dict):
+        return {k: _without_none(v) for k, v in data.items() if v is not None}
+    return data
+
+
 def to_toml(data: dict) -> str:
-    """TOML text of nested tables of numbers, strings, booleans and lists (sub-tables after keys)."""
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, (int, float)):
-            return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        raise TypeError(f"cannot write {type(v).__name__} {v!r} as TOML")
-
-    def table(name, d, lines):
-        scalars = {k: v for k, v in d.items() if not isinstance(v, dict) and v is not None}
-        if name:
-            lines.append(f"[{name}]")
-        lines.extend(f"{k} = {value(v)}" for k, v in scalars.items())
-        for k, v in d.items():
-            if isinstance(v, dict):
-                lines.append("")
-                table(f"{name}.{k}" if name else k, v, lines)
-
-    lines: list[str] = []
-    table("", data, lines)
-    return "\n".join(lines).lstrip("\n") + "\n"
+    """TOML text of nested tables (keys whose value is None are left out: they take their default)."""
+    return tomli_w.dumps(_without_none(data))
 
 
 def fdd_fragment(fdd: FddConfig, comment: str = "") -> str:
@@ -960,13 +1078,4 @@ def fdd_fragment(fdd: FddConfig, comment: str = "") -> str:
 
 def load_fdd_fragment(path) -> FddConfig:
     """The [fdd] table of a fragment file, parsed like a config's; errors name the file and key."""
-    data = load_toml(path)
-    try:
-        extra = sorted(set(data) - {"fdd"})
-        if extra:
-            raise ConfigError(f"{extra[0]}: unknown key; an FDD fragment holds only an [fdd] table")
-        if "fdd" not in data:
-            raise ConfigError("fdd: missing required key")
-        return _convert(FddConfig, data["fdd"], "fdd", _NO_META)
-    except ConfigError as err:
-        raise ConfigError(f"{path}: {err}") from None
+    return load(FddFragment, path).fdd

@@ -1,5 +1,6 @@
 """Campaigns: designs, reproducibility over chunk sizes and resumption, online reductions, metrics."""
 
+import concurrent.futures
 import json
 from pathlib import Path
 
@@ -8,8 +9,10 @@ import pandas as pd
 import pytest
 from scipy.stats import binomtest
 
+import mcfdd
 from mcfdd import cli, config
-from mcfdd.analysis import campaign, metrics, scenarios, simulate
+from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
+from mcfdd.workflows.common import load_bank
 
 SMALL = """
 [campaign]
@@ -55,67 +58,143 @@ def scenario_table(out: Path) -> pd.DataFrame:
     return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True)
 
 
+# The shipped false-alarm campaign, shortened: 64 Sobol samples on each of the 5 manoeuvre families
+# = 320 scenarios of 2 s. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
+# 3 chunks (128, 128, 64), 256 runs 2 (256, 64). A low tau_m gives false alarms to count.
+FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
+SHORT = {"campaign.scenarios": 64, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
+         "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
+ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.confirm_s": 0.0,
+            "fdd.loe.excitation_floor_deg": 0.005}
+N_SHORT = 320
+
+
+def cli_flags(overrides: dict) -> list[str]:
+    return [a for k, v in overrides.items() for a in ("--set", f"{k}={json.dumps(v)}")]
+
+
 @pytest.fixture(scope="module")
-def reference_run(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("campaign")
-    cfg = write_config(tmp)
-    out = tmp / "a"
-    assert run_cli("campaign", cfg, "--out", out, "--chunk-size", 64) == 0
-    return cfg, out
+def in_memory():
+    """The script of issue 12: only ``import mcfdd``; two runs differing in fdd.loe.tau, one compilation."""
+    import jax.monitoring
+
+    compiles = []
+
+    def listen(event, duration_s, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(event)
+
+    first = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides=SHORT), progress=False)
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        second = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING}), progress=False)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return first, second, len(compiles)
 
 
-def test_chunk_size_does_not_change_the_table(reference_run, tmp_path):
-    cfg, out = reference_run
-    other = tmp_path / "b"
-    assert run_cli("campaign", cfg, "--out", other, "--chunk-size", 256) == 0
-    a, b = scenario_table(out), scenario_table(other)
-    assert len(a) == 40
-    pd.testing.assert_frame_equal(a, b)
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory):
+    """``mcfdd campaign`` of the second in-memory run, 3 chunks."""
+    out = tmp_path_factory.mktemp("campaign") / "a"
+    assert run_cli("campaign", FAULT_FREE, "--out", out, *cli_flags({**SHORT, **ALARMING})) == 0
+    return out
 
 
-def test_interrupted_campaign_resumes_to_the_same_table(reference_run, tmp_path, monkeypatch):
-    cfg, out = reference_run
-    resumed = tmp_path / "c"
-    calls = []
-    real = cli.run_campaign
-
-    def interrupt_after_first_chunk(*args, **kwargs):
-        def on_chunk(ids):
-            calls.append(ids)
-            raise KeyboardInterrupt
-
-        return real(*args, on_chunk=on_chunk, **kwargs)
-
-    monkeypatch.setattr(cli, "run_campaign", interrupt_after_first_chunk)
-    assert run_cli("campaign", cfg, "--out", resumed, "--chunk-size", 16) == 130
-    monkeypatch.setattr(cli, "run_campaign", real)
-    assert len(list((resumed / "scenarios").glob("part-*.parquet"))) == 1
-    assert run_cli("campaign", cfg, "--out", resumed, "--chunk-size", 16) == 2  # refused without --resume
-    assert run_cli("campaign", cfg, "--out", resumed, "--chunk-size", 16, "--resume") == 0
-    pd.testing.assert_frame_equal(scenario_table(out), scenario_table(resumed))
+def test_script_reruns_with_new_tau_without_compiling_and_matches_the_cli(in_memory, cli_run):
+    first, second, compiles = in_memory
+    assert compiles == 0
+    assert len(second.scenarios) == N_SHORT and second.simulated == N_SHORT
+    pd.testing.assert_frame_equal(second.scenarios, scenario_table(cli_run))
+    assert len(list((cli_run / "scenarios").glob("part-*.parquet"))) == 3
+    assert second.overall()["false_alarms"] > first.overall()["false_alarms"], "a lower tau_m alarms more often"
 
 
-def test_outputs_carry_provenance_and_summaries(reference_run):
-    _, out = reference_run
+def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
+    _, second, _ = in_memory
+    saved = {p.relative_to(tmp_path / "s") for p in second.save(tmp_path / "s")}
+    assert saved == {p.relative_to(cli_run) for p in cli_run.rglob("*") if p.is_file()}
+    for name in ("summary.parquet", "gaps.parquet", "confusion.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "s" / name), pd.read_parquet(cli_run / name))
+    fig = second.plot("rates_by_manoeuvre")
+    assert fig.axes and fig.axes[0].has_data()
+    with pytest.raises(ValueError, match="plot"):
+        second.plot("nothing")
+
+
+def test_chunk_size_does_not_change_the_table(in_memory):
+    _, second, _ = in_memory
+    chunks = []
+    cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING, "campaign.chunk_size": 256})
+    other = mcfdd.run_campaign(cfg, progress=False, on_chunk=chunks.append)
+    assert [len(c) for c in chunks] == [256, 64]
+    pd.testing.assert_frame_equal(second.scenarios, other.scenarios)
+
+
+def test_interrupted_campaign_resumes_the_missing_scenarios_to_the_same_table(in_memory, tmp_path):
+    _, second, _ = in_memory
+    cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING})
+    out = tmp_path / "c"
+
+    def interrupt_after_first_chunk(ids):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        mcfdd.run_campaign(cfg, out=out, progress=False, on_chunk=interrupt_after_first_chunk)
+    assert [p.name for p in (out / "scenarios").glob("part-*.parquet")] == ["part-00000000.parquet"]
+    with pytest.raises(mcfdd.OutputFolderError, match="out: .* not empty"):
+        mcfdd.run_campaign(cfg, out=out, progress=False)
+    other = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, "campaign.seed": 3})
+    with pytest.raises(mcfdd.OutputFolderError, match="resume: the configuration differs"):
+        mcfdd.run_campaign(other, out=out, resume=True, progress=False)
+    resumed_ids = []
+    resumed = mcfdd.run_campaign(cfg, out=out, resume=True, progress=False, on_chunk=resumed_ids.append)
+    assert resumed.simulated == N_SHORT - 128
+    np.testing.assert_array_equal(np.concatenate(resumed_ids), np.arange(128, N_SHORT))
+    pd.testing.assert_frame_equal(second.scenarios, resumed.scenarios)
+    pd.testing.assert_frame_equal(second.scenarios, scenario_table(out))
+
+
+def test_executor_chunks_give_the_same_table(in_memory):
+    _, second, _ = in_memory
+    cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING})
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        pooled = mcfdd.run_campaign(cfg, progress=False, executor=pool)
+    pd.testing.assert_frame_equal(second.scenarios, pooled.scenarios)
+
+
+def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
+    out = cli_run
     for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "detectability.parquet",
                  "scenarios/part-00000000.parquet"):
         meta = cli.io.read_metadata(out / name)
-        assert json.loads(meta["config"])["campaign"]["seed"] == 7
-        assert meta["seed"] == "7" and meta["version"] and meta["git_revision"]
+        assert json.loads(meta["config"])["campaign"]["seed"] == 21
+        assert meta["seed"] == "21" and meta["version"] and meta["git_revision"]
     summ = pd.read_parquet(out / "summary.parquet")
     overall = summ[summ["group"] == "overall"].iloc[0]
     table = scenario_table(out)
-    assert overall["runs"] == len(table)
-    assert overall["false_alarms"] == int((table["false_alarm"] | table["eta_false_signal"]).sum())
-    assert (out / "summary.md").read_text().startswith("# Campaign")
+    assert overall["runs"] == len(table) == N_SHORT
+    # fault-free runs: a run alarms if its LOE decision or its eta = 1 outside stall loads has a time
+    ok = table["status"].to_numpy() == int(mcfdd.Status.OK)
+    alarm_times = np.fmin(table["false_alarm_time_s"].to_numpy(), np.nan_to_num(
+        table["eta_false_signal_time_s"].to_numpy(), nan=np.inf))
+    alarms = int((ok & np.isfinite(alarm_times)).sum())
+    assert 0 < alarms < N_SHORT, "the low tau_m should alarm in some runs, not all"
+    assert overall["false_alarms"] == alarms
+    ref = binomtest(alarms, N_SHORT).proportion_ci(confidence_level=0.95, method="exact")
+    assert overall["far"] == pytest.approx(alarms / N_SHORT)
+    assert (overall["far_lo"], overall["far_hi"]) == pytest.approx((ref.low, ref.high), abs=1e-12)
+    assert (out / "summary.md").read_text().startswith("# Campaign fault_free")
     assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
     assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
             "separable", "missed", "jam_taken_for_stall", "jam_taken_for_stall_time_s"} <= set(table.columns)
-    det = pd.read_parquet(out / "detectability.parquet")
-    assert det["faulty_runs"].sum() == int((table["fault_kind"].isin(scenarios.PARAMETRIC) & (table["true_model"] > 0)
-                                            & (table["status"] == 0)).sum())
     for png in ("rates_by_fault.png", "detection_times.png", "confusion.png", "detectability.png"):
         assert (out / png).stat().st_size > 0
+
+
+def test_status_codes_carry_their_meaning():
+    assert [int(s) for s in mcfdd.Status] == [0, 1]
+    assert "non-finite" in mcfdd.Status.NON_FINITE.meaning and mcfdd.Status(0) is mcfdd.Status.OK
 
 
 def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
@@ -130,12 +209,11 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)
     c = cfg.campaign
-    cols, n = cfg.design()
-    cli._set_precision("float64")
-    model = cfg.plant.model()
-    bank, _ = cli._load_bank(cfg.fdd, np.float64)
-    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
-    settings = cfg.evaluation.settings(model.actuator.r_arm_m)
+    cols, n = build.design(cfg)
+    model = build.plant_model(cfg.plant)
+    bank, _ = load_bank(cfg.fdd, np.float64)
+    fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
+    settings = build.settings(cfg.evaluation, model.actuator.r_arm_m)
     onset = scenarios.fault_onsets(cols, n)
     _, accept = scenarios.true_model(np.asarray(bank.nu), cols["fault_kind"], cols["fault_size"])
     scen = scenarios.to_scenario(cols, np.float64)
@@ -306,24 +384,45 @@ def test_bad_flags_are_named(tmp_path, capsys):
     assert run_cli("campaign", path, "--out", tmp_path / "y", "--scenarios", -3) == 2
     assert "--scenarios" in capsys.readouterr().err
     assert run_cli("campaign", path, "--out", tmp_path / "z", "--resume") == 2
-    assert "--resume" in capsys.readouterr().err
+    assert "resume: " in capsys.readouterr().err
+    assert run_cli("campaign", path, "--out", tmp_path / "w", "--set", "campaign.scenarios") == 2
+    assert "--set" in capsys.readouterr().err
+    assert run_cli("campaign", path, "--out", tmp_path / "v", "--set", "campaign.scenarioz=3") == 2
+    assert "campaign.scenarioz: unknown key" in capsys.readouterr().err
 
 
 def test_non_finite_scenario_is_marked_and_the_batch_goes_on():
     cfg = config.parse(config.CampaignConfig, {"campaign": {"scenarios": 4, "duration_s": 1.0, "design": "random"},
                                                "space": {"vcas_kt": [200.0, 300.0]}})
-    cols, n = cfg.design()
-    cli._set_precision("float64")
-    model = cfg.plant.model()
-    bank, _ = cli._load_bank(cfg.fdd, np.float64)
-    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
+    cols, n = build.design(cfg)
+    model = build.plant_model(cfg.plant)
+    bank, _ = load_bank(cfg.fdd, np.float64)
+    fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
     scen = scenarios.to_scenario(cols, np.float64)
     scen = scen._replace(noise_std_m=np.where(np.arange(n) == 2, np.nan, scen.noise_std_m))
     truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
-    raw = campaign.run_batch(model, fdd, cfg.evaluation.settings(model.actuator.r_arm_m), scen, truth,
+    raw = campaign.run_batch(model, fdd, build.settings(cfg.evaluation, model.actuator.r_arm_m), scen, truth,
                              simulate.run_keys(0, range(n)), 100, 0.01, 4, (0,))
     status = np.asarray(raw["status"])
-    assert list(status) == [0, 0, campaign.STATUS_NON_FINITE, 0]
+    assert list(status) == [0, 0, campaign.Status.NON_FINITE, 0]
     out = metrics.outcomes({k: np.asarray(v) for k, v in raw.items()}, np.full(n, np.inf),
                            np.zeros((n, 6), bool), np.zeros(n, int), 1.0, 120.0)
     assert not out["false_alarm"][2] and not out["detected"][2]
+
+
+def test_schema_command_validates_the_campaign_configs_and_rejects_a_typo(capsys):
+    import tomllib
+
+    import jsonschema
+
+    assert run_cli("schema", "campaign") == 0
+    validator = jsonschema.Draft202012Validator(json.loads(capsys.readouterr().out))
+    folder = Path(__file__).resolve().parent.parent / "configs"
+    campaigns = [p for p in sorted(folder.glob("*.toml")) if mcfdd.config.infer_kind(
+        tomllib.loads(p.read_text())) == "campaign"]
+    assert {p.name for p in campaigns} >= {"loe_campaign.toml", "stall_campaign.toml", "fault_free.toml"}
+    for path in campaigns:
+        data = tomllib.loads(path.read_text())
+        validator.validate(data)
+        data["campaign"]["scenarioz"] = data["campaign"].pop("scenarios")
+        assert not validator.is_valid(data), path.name

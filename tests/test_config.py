@@ -8,11 +8,13 @@ import re
 from pathlib import Path
 
 import jax
+import jsonschema
 import numpy as np
 import pandas as pd
 import pytest
 
 from mcfdd import cli, config, io
+from mcfdd.analysis import build
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -89,7 +91,7 @@ def test_valid_config_converts_to_si():
     cfg = config.parse(config.SimulateConfig, _valid())
     assert [run.name for run in cfg.runs] == ["a", "b"]
     assert cfg.runs[0].fault.size == 0.2 and cfg.runs[1].fault.kind == "none"
-    actuator = cfg.plant.model().actuator
+    actuator = build.plant_model(cfg.plant).actuator
     assert actuator.supply_pressure_pa == 2.0e7 and actuator.ref_pressure_pa == 2.0e7
     assert actuator.max_current_a == pytest.approx(8e-3)
     assert actuator.max_deflection_rad == pytest.approx(math.radians(25.0))
@@ -121,6 +123,209 @@ def test_shipped_configs_parse(name):
     assert len(cfg.runs) >= 1 and cfg.simulation.n_steps > 0
 
 
+@pytest.mark.parametrize("path, value, key", [case[1:] for case in BAD], ids=[case[0] for case in BAD])
+def test_bad_config_error_is_one_line_without_pydantic_text(path, value, key):
+    with pytest.raises(config.ConfigError) as err:
+        config.parse(config.SimulateConfig, _edit(_valid(), path, value))
+    text = str(err.value)
+    assert text.startswith(f"{key}:") and "\n" not in text
+    assert not re.search(r"pydantic|errors\.pydantic\.dev|type=|For further information|validation error", text)
+
+
+def test_range_and_choices_are_named():
+    bad = _edit(_valid(), ("runs", 1, "vcas_kt"), 500.0)
+    with pytest.raises(config.ConfigError, match=re.escape("runs[1].vcas_kt: 500.0 is outside the allowed range "
+                                                           "[80.0, 420.0]")):
+        config.parse(config.SimulateConfig, bad)
+    bad = _edit(_valid(), ("runs", 0, "turbulence"), "severe")
+    with pytest.raises(config.ConfigError, match="expected one of 'none', 'light', 'moderate'"):
+        config.parse(config.SimulateConfig, bad)
+
+
+def test_an_integer_is_a_number_and_the_models_are_frozen():
+    cfg = config.parse(config.SimulateConfig, _edit(_valid(), ("runs", 0, "vcas_kt"), 250))
+    assert cfg.runs[0].vcas_kt == 250.0 and isinstance(cfg.runs[0].vcas_kt, float)
+    with pytest.raises(ValueError):
+        cfg.runs[0].vcas_kt = 300.0
+
+
+def test_not_utf8_file_names_the_file(tmp_path):
+    path = tmp_path / "binary.toml"
+    path.write_bytes(b"[simulation]\nseed = 1\n# \xff\xfe\x00\x81\n")
+    with pytest.raises(config.ConfigError, match=re.escape(str(path)) + ".*UTF-8") as err:
+        config.load_config(path)
+    assert "\n" not in str(err.value)
+
+
+EXPECTED_KIND = {"fault_free": "campaign", "loe_campaign": "campaign", "stall_campaign": "campaign",
+                 "fig3": "simulate", "fig5": "simulate", "fig4": "sweep", "lpv_aileron": "fit-lpv",
+                 "tune_loe": "tune", "tune_stall": "tune", "worst_case_stall": "worst-case",
+                 "worst_case_stall_detect": "worst-case"}
+
+
+def test_expected_kinds_cover_every_shipped_config():
+    assert {p.stem for p in CONFIGS.glob("*.toml")} == set(EXPECTED_KIND)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED_KIND))
+def test_every_shipped_config_loads_with_its_inferred_kind(name):
+    path = CONFIGS / f"{name}.toml"
+    data = config.load_toml(path)
+    assert config.infer_kind(data) == EXPECTED_KIND[name]
+    cfg = config.load_config(path)
+    assert type(cfg) is config.KINDS[EXPECTED_KIND[name]]
+    assert cfg == config.load_config(path, kind=EXPECTED_KIND[name]) == config.load(type(cfg), path)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED_KIND))
+def test_written_toml_loads_back_to_an_equal_config(tmp_path, name):
+    cfg = config.load_config(CONFIGS / f"{name}.toml")
+    path = tmp_path / "written.toml"
+    path.write_text(config.to_toml(config.to_dict(cfg)))
+    assert config.load_config(path, kind=EXPECTED_KIND[name]) == cfg
+
+
+def test_kind_errors():
+    with pytest.raises(config.ConfigError, match="kind: the sections fdd, space fit campaign, tune, worst-case"):
+        config.load_config({"space": {"vcas_kt": 250.0}, "fdd": {}})
+    with pytest.raises(config.ConfigError, match="kind: 'campain' is not allowed; expected one of 'simulate'"):
+        config.load_config({}, kind="campain")
+    with pytest.raises(config.ConfigError, match="campain: unknown key; no configuration kind"):
+        config.load_config({"campain": {"scenarios": 4}})
+    with pytest.raises(config.ConfigError, match="kind"):
+        config.json_schema("campain")
+
+
+def test_overrides_set_dotted_paths_and_list_entries():
+    cfg = config.load_config(CONFIGS / "fault_free.toml",
+                             overrides={"campaign.scenarios": 256, "fdd.loe.tau": 0.12, "space.vcas_kt": [150, 300]})
+    base = config.load_config(CONFIGS / "fault_free.toml")
+    assert (cfg.campaign.scenarios, cfg.fdd.loe.tau) == (256, 0.12)
+    assert cfg.space.axis("vcas_kt") == config.Axis("vcas_kt", "range", lo=150.0, hi=300.0, n=2)
+    assert [a.name for a in cfg.space.axes] == [a.name for a in base.space.axes]
+    assert cfg.campaign.seed == base.campaign.seed and cfg.plant == base.plant
+    sim = config.load_config(_valid(), overrides={"runs[1].fault.size": 0.3, "runs[1].fault.kind": "leakage"})
+    assert (sim.runs[1].fault.kind, sim.runs[1].fault.size) == ("leakage", 0.3)
+    assert _valid()["runs"][1].get("fault") is None, "the source dict is not modified"
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"campaign.scenario": 4}, "campaign.scenario: unknown key; allowed keys are chunk_size, design"),
+    ({"fdd.lo.tau": 0.1}, "fdd.lo: unknown key; allowed keys are bank, loe, stall"),
+    ({"campaing.seed": 1}, "campaing: unknown key; allowed keys are campaign, evaluation, fdd, plant, space"),
+    ({"space.vcas": 250.0}, "space.vcas: unknown axis"),
+    ({"campaign.seed.x": 1}, "campaign.seed: not a table"),
+    ({"campaign..seed": 1}, "not a key path"),
+])
+def test_override_into_a_missing_key_is_named(overrides, message):
+    with pytest.raises(config.ConfigError, match=re.escape(message)):
+        config.load_config(CONFIGS / "fault_free.toml", overrides=overrides)
+
+
+def test_override_of_a_missing_list_entry_is_named():
+    with pytest.raises(config.ConfigError, match=re.escape("runs[5]: no such entry (runs has 2 entries)")):
+        config.load_config(_valid(), overrides={"runs[5].name": "c"})
+    with pytest.raises(config.ConfigError, match=re.escape("runs[1].fault.size: 1.5 is outside the allowed range")):
+        config.load_config(_valid(), overrides={"runs[1].fault": {"kind": "surface_damage", "size": 1.5}})
+
+
+@pytest.mark.parametrize("key, value", [("campaign.scenarios", 0), ("campaign.scenarios", "256"),
+                                        ("fdd.loe.tau", -0.1), ("campaign.design", "halton"),
+                                        ("space.fault_kind", ["nothing"])])
+def test_bad_override_gives_the_message_of_the_same_value_in_a_file(tmp_path, key, value):
+    data = _edit(config.load_toml(CONFIGS / "fault_free.toml"), tuple(key.split(".")), value)
+    path = tmp_path / "edited.toml"
+    path.write_text(config.to_toml(data))
+    with pytest.raises(config.ConfigError) as in_file:
+        config.load_config(path)
+    with pytest.raises(config.ConfigError) as overridden:
+        config.load_config(CONFIGS / "fault_free.toml", overrides={key: value})
+    assert str(in_file.value) == f"{path}: {overridden.value}"
+    assert str(overridden.value).startswith(key)
+
+
+def test_replace_is_validated():
+    cfg = config.load_config(CONFIGS / "fault_free.toml")
+    changed = config.replace(cfg, {"campaign.seed": 3, "fdd.stall.evaluator.beta": 2})
+    assert changed.campaign.seed == 3 and changed.fdd.stall.evaluator.beta == 2.0
+    assert config.replace(changed, {"campaign.seed": cfg.campaign.seed, "fdd.stall.evaluator.beta": 1.0}) == cfg
+    with pytest.raises(config.ConfigError, match=re.escape("campaign.seed: -1 is outside the allowed range [0, inf]")):
+        config.replace(cfg, {"campaign.seed": -1})
+    with pytest.raises(config.ConfigError, match="space.vcas_kt: range"):
+        config.replace(cfg, {"space.vcas_kt": [300.0, 200.0]})
+    base = config.parse(config.SimulateConfig, _valid())
+    sim = config.replace(base, {"runs[1].manoeuvre.amplitude": -0.3})
+    assert sim.runs[1].manoeuvre.amplitude == -0.3 and sim.runs[0] == base.runs[0]
+
+
+def _mcfdd_imports(module: str) -> set[str]:
+    """The mcfdd modules ``module``'s source imports, anywhere in the file (not through the package face)."""
+    import ast
+
+    root = Path(config.__file__).resolve().parent.parent
+    path = root / (module.replace(".", "/") + ".py")
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mcfdd"):
+            found |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("mcfdd")}
+    return {m for m in found if (root / m.replace(".", "/")).with_suffix(".py").is_file()}
+
+
+def test_config_module_imports_no_analysis():
+    """config.py and every mcfdd module it imports, transitively, import nothing from mcfdd.analysis.
+
+    (``import mcfdd.config`` runs the public face ``mcfdd/__init__.py``, which re-exports the
+    workflows, so the check reads the sources instead of ``sys.modules``.)
+    """
+    seen, todo = set(), ["mcfdd.config"]
+    while todo:
+        module = todo.pop()
+        if module not in seen:
+            seen.add(module)
+            todo.extend(_mcfdd_imports(module))
+    assert {"mcfdd.fdd.lpv", "mcfdd.plant.atmosphere"} <= seen
+    assert not [m for m in seen if m.startswith("mcfdd.analysis") or m.startswith("mcfdd.workflows")], sorted(seen)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED_KIND))
+def test_shipped_configs_validate_against_their_json_schema(name):
+    data = config.load_toml(CONFIGS / f"{name}.toml")
+    jsonschema.Draft202012Validator(config.json_schema(EXPECTED_KIND[name])).validate(data)
+
+
+@pytest.mark.parametrize("edit", [
+    lambda d: d["campaign"].update(scenarioz=8),
+    lambda d: d.update(campain={}),
+    lambda d: d["space"].update(vcas_k=[200.0, 300.0]),
+    lambda d: d["space"].update(vcas_kt={"range": [200.0, 300.0], "m": 3}),
+    lambda d: d["space"].update(turbulence=["light", "severe"]),
+    lambda d: d["campaign"].update(scenarios="8"),
+    lambda d: d["space"].update(kd_scale=[0.5, 1.0, 2.0]),
+])
+def test_campaign_schema_rejects_what_the_parser_rejects(edit):
+    schema = jsonschema.Draft202012Validator(config.json_schema("campaign"))
+    for path in CONFIGS.glob("*.toml"):
+        if EXPECTED_KIND[path.stem] != "campaign":
+            continue
+        data = config.load_toml(path)
+        edit(data)
+        assert not schema.is_valid(data)
+        with pytest.raises(config.ConfigError):
+            config.load_config(data, kind="campaign")
+
+
+def test_campaign_schema_accepts_every_axis_form():
+    data = {"space": {"vcas_kt": 250.0, "altitude_m": [0.0, 3000.0], "kd_scale": {"values": [0.8, 1.2]},
+                      "hinge_scale": {"range": [0.9, 1.1], "n": 5}, "turbulence": ["light", "moderate"],
+                      "fault_kind": "none"}}
+    jsonschema.Draft202012Validator(config.json_schema("campaign")).validate(data)
+    axes = config.load_config(data, kind="campaign").space.axes
+    assert [a.kind for a in axes] == ["const", "range", "values", "range", "choices", "const"]
+    assert axes[3].n == 5
+
+
 # ---------------------------------------------------------------------------------------------
 # mcfdd simulate
 
@@ -129,18 +334,16 @@ def test_shipped_configs_parse(name):
 def simulated(tmp_path_factory):
     """``mcfdd simulate`` of fig3 and fig5, in-process: {name: (output folder, parsed config)}.
 
-    ``main`` sets jax_enable_x64 from the config's precision (float32 here); the flag is restored
-    for the other tests.
+    The command computes at the config's precision (float32 here) and leaves the caller's
+    jax_enable_x64 as it was.
     """
     x64 = jax.config.jax_enable_x64
     runs = {}
-    try:
-        for name in ("fig3", "fig5"):
-            out = tmp_path_factory.mktemp(name)
-            assert cli.main(["simulate", str(CONFIGS / f"{name}.toml"), "--out", str(out)]) == 0
-            runs[name] = out, config.load(config.SimulateConfig, CONFIGS / f"{name}.toml")
-    finally:
-        jax.config.update("jax_enable_x64", x64)
+    for name in ("fig3", "fig5"):
+        out = tmp_path_factory.mktemp(name)
+        assert cli.main(["simulate", str(CONFIGS / f"{name}.toml"), "--out", str(out)]) == 0
+        runs[name] = out, config.load(config.SimulateConfig, CONFIGS / f"{name}.toml")
+    assert jax.config.jax_enable_x64 == x64
     return runs
 
 

@@ -18,6 +18,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
 from mcfdd import io
+from mcfdd.analysis import build
 from mcfdd.config import FddConfig, LoeDetectionConfig
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, system, thresholds
 
@@ -363,8 +364,8 @@ def test_gated_filters_restart_from_equilibrium(bank):
     """While evaluation is suspended (here: tracking error beyond the linear range) every residual and
     the band-pass input are zero and, once the gate reopens, the run equals a fresh start at that
     sample from the measured position: no transient of the gated interval survives it."""
-    params = FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, linear_range_deg=3.5)).params(
-        bank, r_arm_m=R_ARM_M)
+    params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, linear_range_deg=3.5)), bank,
+                              r_arm_m=R_ARM_M)
     n, jump = 600, 100
     u_c = np.where(np.arange(n) >= jump, 20.0, 0.0) * DEG_M + smooth_command(n, 0.0) * 0.1
     gain = eq4_gains(bank, VCAS_M_S, ALT_M)
@@ -428,8 +429,8 @@ def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
     u, _ = lpv_plant(gain, 1, u_c, u_c[0])
     k0 = np.asarray(bank.k0)
     for f in (0.0, 1.0):
-        params = FddConfig(loe=LoeDetectionConfig(tau=0.02, tau_schedule=f, max_load_fraction=1.0)).params(
-            bank, r_arm_m=R_ARM_M)
+        params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(tau=0.02, tau_schedule=f, max_load_fraction=1.0)),
+                                  bank, r_arm_m=R_ARM_M)
 
         def body(state, inp):
             c, m, t = inp
@@ -600,7 +601,7 @@ def test_system_detects_the_plant_model(bank):
     """Fault-free plant: never a fault model, and model 0 once excited; disconnection (model 1):
     1 once excited. A second run with another tau does not recompile."""
     loe = LoeDetectionConfig(tau=0.04, confirm_s=0.0, max_load_fraction=1.0, excitation_floor_deg=0.05)  # noise-free
-    params = FddConfig(loe=loe).params(bank, r_arm_m=R_ARM_M)
+    params = build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
     t = np.arange(1500) * DT_S
     u_c = jnp.asarray((15.0 + 8.0 * np.sin(2 * np.pi * t)) * DEG_M)
     excited = t >= 5.0

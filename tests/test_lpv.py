@@ -1,7 +1,6 @@
 """LPV gain models of eqs. (3)-(4) and their output-error fit (Section 3), the shipped bank of
 Section 6.1 and the ``fit-lpv`` configuration."""
 
-import dataclasses
 import json
 import re
 from pathlib import Path
@@ -11,8 +10,9 @@ import numpy as np
 import pytest
 
 from mcfdd import config, io
-from mcfdd.analysis import lpv_fit
+from mcfdd.analysis import build, lpv_fit
 from mcfdd.fdd import lpv
+from mcfdd.workflows.common import CompileCounter
 
 CONFIG = Path(__file__).resolve().parent.parent / "configs" / "lpv_aileron.toml"
 
@@ -26,17 +26,17 @@ def cfg():
 def small(cfg):
     """The config's procedure on a reduced problem: 5 s runs, 3 of its training manoeuvres, 30 iterations."""
     ms = [m for m in cfg.training if m.kind == "ol_doublet"][1::2] + [cfg.training[-2]]
-    return dataclasses.replace(
-        cfg, envelope=dataclasses.replace(cfg.envelope, grid=(3, 2), validation_points=3),
-        runs=dataclasses.replace(cfg.runs, duration_s=5.0),
-        optimiser=dataclasses.replace(cfg.optimiser, iterations=30),
-        training=tuple(dataclasses.replace(m, duration_s=min(m.duration_s, 4.5)) for m in ms),
-        validation=tuple(dataclasses.replace(m, duration_s=min(m.duration_s, 4.5)) for m in cfg.validation[::2]))
+    def shortened(runs):
+        return [{**config.to_dict(m), "duration_s": min(m.duration_s, 4.5)} for m in runs]
+
+    return config.replace(cfg, {"envelope.grid": [3, 2], "envelope.validation_points": 3, "runs.duration_s": 5.0,
+                                "optimiser.iterations": 30, "training": shortened(ms),
+                                "validation": shortened(cfg.validation[::2])})
 
 
 @pytest.fixture(scope="module")
 def model(cfg):
-    return cfg.plant.model()
+    return build.plant_model(cfg.plant)
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +46,11 @@ def shipped():
 
 def problem(cfg, model, split):
     mach = cfg.plant.aircraft.max_mach
-    points = (cfg.envelope.training_points(mach) if split == "training"
-              else cfg.envelope.validation_flight_points(mach, cfg.seed))
+    points = (build.lpv_training_points(cfg.envelope, mach) if split == "training"
+              else build.lpv_validation_points(cfg.envelope, mach, cfg.seed))
     r = cfg.runs
-    return lpv_fit.make_problem(model, cfg.nus(), *points, cfg.manoeuvre_params(split), r.n_steps, r.dt_s, r.substeps)
+    return lpv_fit.make_problem(model, build.lpv_nus(cfg), *points, build.lpv_manoeuvre_params(cfg, split), r.n_steps,
+                                r.dt_s, r.substeps)
 
 
 @pytest.fixture(scope="module")
@@ -69,12 +70,12 @@ def rms_errors(bank, prob, cfg):
 
 def test_fit_recovers_known_lpv_coefficients(small, model, training):
     """Responses of an LPV bank with known coefficients are fitted back to those coefficients."""
-    start, free = lpv_fit.initial_bank(model, small.nus(), *small.envelope.training_points(0.82))
+    start, free = lpv_fit.initial_bank(model, build.lpv_nus(small), *build.lpv_training_points(small.envelope, 0.82))
     offset = np.array([[1.0, 0.3, -0.2], [0.4, -0.2, 0.1], [-0.5, 0.3, 0.2], [1.0, -0.6, 0.3]])
     known = start._replace(coef=start.coef + jnp.asarray(offset) * jnp.arange(1, 7)[:, None, None] / 6.0)
     data = training._replace(x_m=lpv_fit.responses(known, training, small.runs.dt_s))
     free = free & (np.arange(6) != 2)
-    cfg = dataclasses.replace(small, optimiser=dataclasses.replace(small.optimiser, iterations=120))
+    cfg = config.replace(small, {"optimiser.iterations": 120})
     fitted, history = fit(cfg, start, data, free)
     assert np.all(history[-1][free] < 1e-4 * history[0][free])
     fitted_coef, known_coef = np.asarray(fitted.coef), np.asarray(known.coef)
@@ -84,22 +85,24 @@ def test_fit_recovers_known_lpv_coefficients(small, model, training):
 
 
 def test_fit_does_not_recompile_for_new_numbers(small, model, training):
-    start, free = lpv_fit.initial_bank(model, small.nus(), *small.envelope.training_points(0.82))
+    start, free = lpv_fit.initial_bank(model, build.lpv_nus(small), *build.lpv_training_points(small.envelope, 0.82))
     fit(small, start, training, free)
-    compiled = lpv_fit._adam_step._cache_size()
-    fit(small, start._replace(coef=start.coef * 1.01), training._replace(x_m=training.x_m * 0.99), free)
-    assert lpv_fit._adam_step._cache_size() == compiled
+    other_start, other_training = start._replace(coef=start.coef * 1.01), training._replace(x_m=training.x_m * 0.99)
+    with CompileCounter() as again:
+        fit(small, other_start, other_training, free)
+    assert again.count == 0
 
 
 def test_shipped_bank_matches_the_nonlinear_actuator_on_held_out_runs(small, model, shipped):
-    """Validation flight points and manoeuvres, none of them in the fit: RMS error below 1 % of the amplitude."""
+    """Validation flight points and manoeuvres, none of them in the fit. Measured on this reduced problem:
+    RMS error 0.027-0.072 % of the amplitude per model, largest error 0.10-0.41 %; allowed 0.1 % and 0.6 %."""
     bank, names = shipped
     assert names == tuple(m.name for m in small.models)
-    np.testing.assert_allclose(bank.nu, small.nus())
+    np.testing.assert_allclose(bank.nu, build.lpv_nus(small))
     summary = rms_errors(bank, problem(small, model, "validation"), small)
     assert np.all(summary["runs"] > 0)
-    assert np.all(summary["rms"] < 0.01), summary["rms"]
-    assert np.all(summary["max"] < 0.05), summary["max"]
+    assert np.all(summary["rms"] < 0.001), summary["rms"]
+    assert np.all(summary["max"] < 0.006), summary["max"]
 
 
 def test_shipped_bank_is_what_the_config_fits(cfg, small, model, training, shipped):
@@ -109,7 +112,7 @@ def test_shipped_bank_is_what_the_config_fits(cfg, small, model, training, shipp
     fit_info = io.load_bank_dict()["fit"]
     assert fit_info["config"] == json.loads(config.to_json(cfg))
     assert fit_info["command"] == "mcfdd fit-lpv configs/lpv_aileron.toml"
-    start, free = lpv_fit.initial_bank(model, small.nus(), *small.envelope.training_points(0.82),
+    start, free = lpv_fit.initial_bank(model, build.lpv_nus(small), *build.lpv_training_points(small.envelope, 0.82),
                                        small.exact_disconnection)
     refit, _ = fit(small, start, training, free)
     ours, theirs = rms_errors(shipped[0], training, small)["rms"], rms_errors(refit, training, small)["rms"]
@@ -216,5 +219,5 @@ def test_bad_lpv_fit_config_names_the_key(edit, key):
 def test_lpv_fit_config_defaults_are_the_paper_models():
     cfg = config.parse(config.LpvFitConfig, _base())
     assert [(m.name, (m.nu1, m.nu2)) for m in cfg.models] == [(n, nu) for n, nu in lpv.PAPER_MODELS]
-    m = cfg.manoeuvre_params("training")
+    m = build.lpv_manoeuvre_params(cfg, "training")
     np.testing.assert_allclose(m.amplitude, [0.2, -0.2])

@@ -279,8 +279,9 @@ def test_heading_change_captures_the_new_heading(closed_loop_runs):
 
 def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules_on_it():
     """run_batch's Vcas/altitude ranges against the full histories of the same rcam runs."""
-    from mcfdd import cli, config
-    from mcfdd.analysis import batch, campaign, scenarios, simulate
+    from mcfdd import config
+    from mcfdd.analysis import batch, build, campaign, scenarios, simulate
+    from mcfdd.workflows.common import load_bank
 
     cfg = config.parse(config.CampaignConfig, {
         "campaign": {"scenarios": 3, "duration_s": 12.0, "design": "random"},
@@ -288,14 +289,14 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
         "space": {"vcas_kt": [150.0, 220.0], "altitude_m": [500.0, 5000.0],
                   "manoeuvre_kind": ["speed_change", "fpa_change", "pitch_doublet"], "delta_vcas_kt": 15.0,
                   "fpa_deg": 4.0, "amplitude": 0.5, "t_start_s": 1.0, "duration_s": 3.0}})
-    cols, n = cfg.design()
-    model = cfg.plant.model()
-    bank, _ = cli._load_bank(cfg.fdd, np.float64)
-    fdd = cfg.fdd.params(bank, model.actuator.r_arm_m)
+    cols, n = build.design(cfg)
+    model = build.plant_model(cfg.plant)
+    bank, _ = load_bank(cfg.fdd, np.float64)
+    fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
     scen = scenarios.to_scenario(cols, np.float64)
     kinds, keys = batch.kinds_in(scen.manoeuvre.kind), simulate.run_keys(0, range(n))
     truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
-    raw = campaign.run_batch(model, fdd, cfg.evaluation.settings(model.actuator.r_arm_m), scen, truth, keys,
+    raw = campaign.run_batch(model, fdd, build.settings(cfg.evaluation, model.actuator.r_arm_m), scen, truth, keys,
                              1200, 0.01, 4, kinds)
     plant, fdd_out = simulate.fdd_batch(model, fdd, scen, keys, 1200, 0.01, 4, kinds)
     v, h = np.asarray(plant.vcas_m_s), np.asarray(plant.altitude_m)
@@ -308,7 +309,7 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
     from mcfdd.fdd import system
 
     i = int(np.argmax(h.max(axis=1) - h.min(axis=1)))
-    moving = frozen = system.init(fdd, 0.0, 0.0)
+    moving = frozen = system.init(fdd, 0.0)
     for k in range(1200):
         moving, step_out = system.step(fdd, moving, plant.u_c_m[i, k], plant.u_m[i, k], plant.vcas_m_s[i, k],
                                        plant.altitude_m[i, k], k * 0.01, 0.01)

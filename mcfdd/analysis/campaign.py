@@ -29,11 +29,12 @@ O(batch x steps). Per scenario (definitions of DESIGN.md section 5):
 - Jams taken for stalls: the first eta = 1 (either identification method) on a jammed rod.
 - flight point: the smallest and largest measured Vcas and altitude of the run (constant on the
   roll axis; the full aircraft's move with its manoeuvre).
-- status: 0 ok, 1 if any monitored signal went non-finite (the run's outcomes are then void).
+- status: a :class:`Status` code (0 ok, 1 if any monitored signal went non-finite: outcomes void).
 """
 
 from __future__ import annotations
 
+import enum
 from functools import partial
 from typing import NamedTuple
 
@@ -45,8 +46,19 @@ from mcfdd.analysis.simulate import scan_steps
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
-STATUS_OK = 0
-STATUS_NON_FINITE = 1
+class Status(enum.IntEnum):
+    """Scenario status code, the ``status`` column of a campaign table; ``.meaning`` says what it means."""
+
+    OK = 0, "the run's numbers stayed finite; its outcomes count"
+    NON_FINITE = 1, "a monitored signal went non-finite; the run's outcomes are void and not counted"
+
+    def __new__(cls, code: int, meaning: str):
+        member = int.__new__(cls, code)
+        member._value_ = code
+        member.meaning = meaning
+        return member
+
+
 MOVING_RATE_M_S = 1e-3  # rod rate (about 1.1 deg/s of surface) above which the rod counts as moving
 
 
@@ -246,7 +258,7 @@ def finalize(s: Settings, red: Reduction, t_end) -> dict:
     red = red._replace(eta_outside_signal=jnp.minimum(red.eta_outside_signal, red.eta_pending_signal),
                        eta_outside_model=jnp.minimum(red.eta_outside_model, red.eta_pending_model))
     return {
-        "status": jnp.where(red.finite, STATUS_OK, STATUS_NON_FINITE).astype(jnp.int32),
+        "status": jnp.where(red.finite, int(Status.OK), int(Status.NON_FINITE)).astype(jnp.int32),
         "false_alarm_time_s": red.fa_time, "detection_time_s": red.det_time,
         "false_identification_time_s": red.fid_time, "false_identification_model": red.fid_model,
         "identification_time_s": red.id_time, "identified_model": red.id_model,

@@ -41,16 +41,10 @@ from mcfdd.fdd import lpv, thresholds
 from mcfdd.plant import actuator, atmosphere, closed_loop, hinge, manoeuvres
 
 
-def below_mach(vcas_m_s, altitude_m, max_mach: float):
-    """Which points of the grid Vcas (n_v,) x altitude (n_h,) respect the Mach limit, (n_v, n_h) bool."""
-    v, h = np.meshgrid(np.asarray(vcas_m_s, float), np.asarray(altitude_m, float), indexing="ij")
-    return np.asarray(atmosphere.mach(v, h)) <= max_mach
-
-
 def envelope_grid(vcas_m_s, altitude_m, max_mach: float):
     """Flight points (Vcas, h) of a grid below the Mach limit, as two flat arrays."""
     v, h = np.meshgrid(np.asarray(vcas_m_s, float), np.asarray(altitude_m, float), indexing="ij")
-    keep = below_mach(vcas_m_s, altitude_m, max_mach)
+    keep = atmosphere.below_mach(vcas_m_s, altitude_m, max_mach)
     return v[keep], h[keep]
 
 
@@ -322,7 +316,7 @@ def gain_comparison(bank: lpv.GainBank, model: closed_loop.PlantModel, vcas_m_s,
     """
     k_lpv = np.asarray(thresholds.gain_grid(bank, vcas_m_s, altitude_m, x_m))
     k_nonlinear = np.asarray(nonlinear_grid(model, bank.nu, vcas_m_s, altitude_m, x_m)[0])
-    above = ~below_mach(vcas_m_s, altitude_m, max_mach)[None, :, :, None, None]
+    above = ~atmosphere.below_mach(vcas_m_s, altitude_m, max_mach)[None, :, :, None, None]
     return np.where(above, np.nan, k_lpv), np.where(above, np.nan, k_nonlinear)
 
 
@@ -362,7 +356,7 @@ def neighbour_distances(bank: lpv.GainBank, model: closed_loop.PlantModel, vcas_
     """
     lpv_d = np.asarray(jax.jit(thresholds.pairwise_distances)(bank, vcas_m_s, altitude_m, x_m))
     gain, pressure = (np.asarray(a) for a in nonlinear_grid(model, bank.nu, vcas_m_s, altitude_m, x_m))
-    envelope = np.broadcast_to(below_mach(vcas_m_s, altitude_m, max_mach)[:, :, None, None], gain.shape[1:])
+    envelope = np.broadcast_to(atmosphere.below_mach(vcas_m_s, altitude_m, max_mach)[:, :, None, None], gain.shape[1:])
     overall = np.asarray(thresholds.minimum_distances(lpv_d, envelope))
     out = []
     for i, j in neighbour_pairs(bank.nu):

@@ -5,7 +5,7 @@ A scenario is one row of a table whose columns carry their unit in the name (``v
 :class:`~mcfdd.plant.closed_loop.Scenario` pytree, so single runs and campaigns share one
 conversion.
 
-A space has one :class:`Axis` per column: a constant, a continuous range, discrete values or
+A space has one :class:`mcfdd.config.Axis` per column: a constant, a continuous range, discrete values or
 named choices. A design maps the unit hypercube to the axes: full grid, random, Latin hypercube
 or Sobol (``scipy.stats.qmc``), or a grid over some axes crossed with samples over the others.
 The flight envelope is respected by construction: Vcas is drawn between its lower bound and the
@@ -16,15 +16,12 @@ limit are dropped), which keeps the stratification of the design in the unit cub
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import qmc
 
+from mcfdd.config import DESIGNS, FAULT_KINDS, PARAMETRIC, Axis
 from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres, turbulence
-
-FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
-PARAMETRIC = ("leakage", "surface_damage", "disconnection")
 
 DEFAULTS = {
     "vcas_kt": 250.0, "altitude_m": 3000.0, "supply_pressure_scale": 1.0, "kci_scale": 1.0, "kd_scale": 1.0,
@@ -34,7 +31,6 @@ DEFAULTS = {
     "sideslip_deg": 0.0, "fpa_deg": 0.0, "heading_change_deg": 0.0, "bank_deg": 0.0, "delta_vcas_kt": 0.0,
 }
 CATEGORICAL = {"turbulence": tuple(turbulence.LEVELS), "fault_kind": FAULT_KINDS, "manoeuvre_kind": manoeuvres.KINDS}
-DESIGNS = ("grid", "random", "lhs", "sobol")
 
 
 def fault_nu(kind, size):
@@ -83,34 +79,6 @@ def to_scenario(cols: dict, dtype=np.float32) -> closed_loop.Scenario:
             bank_rad=np.radians(c["bank_deg"]).astype(f),
             delta_vcas_m_s=(c["delta_vcas_kt"] * atmosphere.KT_TO_M_S).astype(f)),
     )
-
-
-@dataclass(frozen=True)
-class Axis:
-    """One column of a scenario space.
-
-    kind: 'const' (``values[0]``), 'range' (uniform on [lo, hi]; ``n`` points when gridded),
-    'values' (discrete numbers) or 'choices' (names).
-    """
-
-    name: str
-    kind: str
-    values: tuple = ()
-    lo: float = 0.0
-    hi: float = 0.0
-    n: int = 0
-
-    def grid_values(self) -> tuple:
-        if self.kind == "range":
-            return tuple(np.linspace(self.lo, self.hi, self.n)) if self.n > 1 else (self.lo,)
-        return self.values
-
-    def from_unit(self, u):
-        """Map uniform numbers in [0, 1) to axis values."""
-        if self.kind == "range":
-            return self.lo + u * (self.hi - self.lo)
-        options = np.asarray(self.values)
-        return options[np.minimum((u * len(options)).astype(int), len(options) - 1)]
 
 
 def mach_limit_speed_kt(altitude_m, max_mach: float):

@@ -149,7 +149,7 @@ def bounds(fdd_params: system.FddParams, settings: campaign.Settings, data: Trai
         return fdd_run(fdd_params, settings, plant, v, h, truth, temperature, dt_s)
 
     soft, outcomes = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
-    ok = outcomes["status"] == campaign.STATUS_OK
+    ok = outcomes["status"] == campaign.Status.OK
     counts = ok & (data.counts if detector == "loe" else True)
     free = soft[f"{detector}_free"]
     detect = soft[f"{detector}_detect"]
@@ -202,7 +202,7 @@ def threshold_scan(fdd_params, settings, data: TrainingSet, taus, dt_s: float, d
             return fdd_run(with_threshold(fdd_params, detector, tau), settings, plant, v, h, truth, 1.0, dt_s)[1]
 
         out = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
-        ok = out["status"] == campaign.STATUS_OK
+        ok = out["status"] == campaign.Status.OK
         if detector == "loe":
             false = ok & jnp.isfinite(out["false_identification_time_s"])
             missed = ok & data.counts & ~jnp.isfinite(out["identification_time_s"])

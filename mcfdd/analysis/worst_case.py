@@ -247,7 +247,7 @@ class SearchSpace:
 
     @classmethod
     def from_axes(cls, axes, max_mach: float, size_columns: dict) -> "SearchSpace":
-        """Split the axes (:class:`mcfdd.analysis.scenarios.Axis`) of a scenario space."""
+        """Split the axes (:class:`mcfdd.config.Axis`) of a scenario space."""
         return cls(tuple(a for a in axes if a.kind == "range"),
                    tuple(a for a in axes if a.kind in ("choices", "values")),
                    {a.name: a.values[0] for a in axes if a.kind == "const"}, dict(size_columns), max_mach)

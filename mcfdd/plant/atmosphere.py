@@ -14,6 +14,7 @@ All functions take and return SI units (m, m/s, Pa, K) and broadcast over arrays
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 P0_PA = 101325.0
 T0_K = 288.15
@@ -59,6 +60,12 @@ def mach(vcas_m_s, altitude_m):
     _, pressure, _, _ = isa(altitude_m)
     qc = impact_pressure(vcas_m_s)
     return jnp.sqrt(5.0 * ((qc / pressure + 1.0) ** (2.0 / 7.0) - 1.0))
+
+
+def below_mach(vcas_m_s, altitude_m, max_mach: float):
+    """Which points of the grid Vcas (n_v,) x altitude (n_h,) respect the Mach limit, (n_v, n_h) bool."""
+    v, h = np.meshgrid(np.asarray(vcas_m_s, float), np.asarray(altitude_m, float), indexing="ij")
+    return np.asarray(mach(v, h)) <= max_mach
 
 
 def calibrated_airspeed(mach_number, altitude_m):

@@ -1,0 +1,17 @@
+"""Test set-up for the whole repository (tests and doctests): two JAX host devices, float64 numerics.
+
+The device count is fixed before JAX starts, so the sharded campaign path is tested whatever the
+machine or the test order; ``tests/test_campaign.py`` compares one run on a single device.
+"""
+
+import os
+import re
+
+FLAG = "--xla_force_host_platform_device_count"
+TEST_DEVICES = 2
+os.environ["XLA_FLAGS"] = (re.sub(rf"{FLAG}=\d+", "", os.environ.get("XLA_FLAGS", "")) +
+                           f" {FLAG}={TEST_DEVICES}").strip()
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)

@@ -1,0 +1,165 @@
+"""From parsed configuration (:mod:`mcfdd.config`) to the SI pytrees and tables the analysis runs on.
+
+Configuration keys carry their unit in the name (kt, deg, mA, mm); everything built here is in
+SI units (m/s, rad, A, m), and FDD thresholds and signal levels given in degrees of surface
+deflection become rod positions through the lever arm r_arm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mcfdd import config
+from mcfdd.analysis import campaign, lpv_fit, scenarios, worst_case
+from mcfdd.fdd import evaluator, lpv, stall, system
+from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres
+
+
+def _actuator_params(c: config.ActuatorConfig) -> actuator.ActuatorParams:
+    return actuator.ActuatorParams(
+        supply_pressure_pa=c.supply_pressure_pa,
+        ref_pressure_pa=c.ref_pressure_pa or c.supply_pressure_pa,
+        piston_area_m2=c.piston_area_m2,
+        r_arm_m=c.r_arm_m,
+        max_current_a=c.max_current_ma * 1e-3,
+        kci_m_s_a=c.kci_mm_s_per_ma,
+        kp_a_m=c.kp_ma_per_mm,
+        kd_n_s2_m2=c.kd_n_s2_m2,
+        max_deflection_rad=math.radians(c.max_deflection_deg),
+    )
+
+
+def _aircraft_params(c: config.AircraftConfig) -> aircraft.AircraftParams:
+    return aircraft.AircraftParams(wing_area_m2=c.wing_area_m2, mean_chord_m=c.mean_chord_m, span_m=c.span_m,
+                                   mass_kg=c.mass_kg, roll_inertia_kg_m2=c.roll_inertia_kg_m2,
+                                   monitored_share=c.monitored_share)
+
+
+def _roll_law_params(c: config.ControlLawConfig) -> control_law.RollLawParams:
+    return control_law.RollLawParams(
+        max_roll_rate_rad_s=math.radians(c.max_roll_rate_deg_s), bank_hold_rad=math.radians(c.bank_hold_deg),
+        bank_protection_rad=math.radians(c.bank_protection_deg), time_constant_s=c.time_constant_s)
+
+
+def _hinge_surface(c: config.HingeConfig) -> hinge.HingeSurface:
+    return hinge.HingeSurface(c.area_m2, c.chord_m, c.ch0, c.ch_alpha_per_rad, c.ch_delta_per_rad)
+
+
+def plant_model(plant_cfg: config.PlantConfig) -> closed_loop.PlantModel:
+    """Plant constants and hinge table over the configurable flight envelope."""
+    return closed_loop.build_model(
+        _actuator_params(plant_cfg.actuator), _aircraft_params(plant_cfg.aircraft),
+        _roll_law_params(plant_cfg.control_law), _hinge_surface(plant_cfg.hinge),
+        vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in config.VCAS_RANGE_KT),
+        altitude_range_m=config.ALTITUDE_RANGE_M, aircraft_model=plant_cfg.aircraft.model)
+
+
+def evaluator_params(c: config.EvaluatorConfig) -> evaluator.NarendraParams:
+    return evaluator.NarendraParams(c.alpha, c.beta, c.gamma_1_s)
+
+
+def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) -> system.FddParams:
+    """FDD parameters in rod units for an actuator with lever arm ``r_arm_m``."""
+    deg = math.radians(1.0) * r_arm_m
+    loe, stl = fdd_cfg.loe, fdd_cfg.stall
+    return system.FddParams(
+        loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, evaluator=evaluator_params(loe.evaluator), tau=loe.tau,
+                             tau_schedule=loe.tau_schedule, detection_tau=loe.detection_tau,
+                             detection_confirm_s=loe.detection_confirm_s, excitation_floor=loe.excitation_floor_deg * deg, confirm_s=loe.confirm_s,
+                             max_load_fraction=loe.max_load_fraction,
+                             linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
+        stall=system.StallParams(
+            pole=stl.pole_1_s, evaluator=evaluator_params(stl.evaluator), tau=stl.tau_deg * deg,
+            signal=stall.SignalRules(stl.signal.rate_min_deg_s * deg, stl.signal.command_min_deg * deg,
+                                     stl.signal.position_min_deg * deg, stl.signal.window_s,
+                                     stl.signal.error_min_deg * deg),
+            model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, evaluator_params(stl.model.evaluator),
+                                  stl.model.tau_deg * deg)),
+    )
+
+
+def settings(eval_cfg: config.EvaluationConfig, r_arm_m: float) -> campaign.Settings:
+    """Scoring settings of a campaign (the tracking-error floor in m of rod travel)."""
+    return campaign.Settings(eval_cfg.settle_s, eval_cfg.t_detec_s, eval_cfg.stall_grace_s,
+                             eval_cfg.stall_min_duration_s, math.radians(eval_cfg.stall_min_error_deg) * r_arm_m,
+                             eval_cfg.stall_window_s)
+
+
+def run_columns(run: config.RunConfig) -> dict:
+    """The run as a row of a scenario table (see :mod:`mcfdd.analysis.scenarios`)."""
+    m = run.manoeuvre
+    return {
+        "vcas_kt": run.vcas_kt, "altitude_m": run.altitude_m, "supply_pressure_scale": run.supply_pressure_scale,
+        "kci_scale": run.kci_scale, "kd_scale": run.kd_scale, "hinge_scale": run.hinge_scale,
+        "roll_inertia_scale": run.roll_inertia_scale, "mass_scale": run.mass_scale, "noise_std_mm": run.noise_std_mm,
+        "turbulence": run.turbulence, "fault_kind": run.fault.kind, "fault_size": run.fault.size,
+        "fault_onset_s": run.fault.onset_s, "manoeuvre_kind": m.kind, "amplitude": m.amplitude,
+        "t_start_s": m.t_start_s, "duration_s": m.duration_s, "hold_s": m.hold_s, "ramp_s": m.ramp_s,
+        "freq_lo_hz": m.freq_lo_hz, "freq_hi_hz": m.freq_hi_hz, "sideslip_deg": m.sideslip_deg,
+        "fpa_deg": m.fpa_deg, "heading_change_deg": m.heading_change_deg, "bank_deg": m.bank_deg,
+        "delta_vcas_kt": m.delta_vcas_kt,
+    }
+
+
+def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
+    """Scenario columns of both Fig. 4 sweeps, run names, family ('surface'/'leakage') and size per run."""
+    surface = np.linspace(0.0, 1.0, sweep.surface_points)
+    leakage = np.linspace(0.0, sweep.max_leakage, sweep.leakage_points)
+    n = len(surface) + len(leakage)
+    table = {k: np.full(n, v) for k, v in run_columns(sweep.run).items()}
+    table["fault_kind"] = np.array(["surface_damage"] * len(surface) + ["leakage"] * len(leakage))
+    table["fault_size"] = np.concatenate([surface, leakage])
+    family = np.array(["surface"] * len(surface) + ["leakage"] * len(leakage))
+    names = [f"{f}-{100 * v:.1f}pct" for f, v in zip(family, table["fault_size"])]
+    return table, names, family, table["fault_size"]
+
+
+def design(cfg: config.CampaignConfig) -> tuple[dict, int]:
+    """Scenario columns of a campaign's design (dict of arrays) and their number of rows."""
+    c = cfg.campaign
+    cols, n = scenarios.design_table(list(cfg.space.axes), c.scenarios, c.design, c.seed, c.grid,
+                                     cfg.plant.aircraft.max_mach)
+    kind = np.asarray(cols["fault_kind"])
+    size = np.zeros(n)
+    for column, fault in config.SIZE_COLUMNS.items():
+        if column in cols:
+            size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
+    if any(c in {a.name for a in cfg.space.axes} for c in config.SIZE_COLUMNS):
+        cols["fault_size"] = size
+    return cols, n
+
+
+def search_space(cfg: config.WorstCaseConfig) -> worst_case.SearchSpace:
+    """The scenario space of a worst-case search, split into continuous and categorical axes."""
+    return worst_case.SearchSpace.from_axes(cfg.space.axes, cfg.plant.aircraft.max_mach, config.SIZE_COLUMNS)
+
+
+def lpv_training_points(envelope: config.LpvEnvelopeConfig, max_mach: float):
+    """Training flight points (Vcas m/s, h m) of the LPV fit, two flat arrays."""
+    return lpv_fit.envelope_grid(np.linspace(*envelope.vcas_kt, envelope.grid[0]) * atmosphere.KT_TO_M_S,
+                                 np.linspace(*envelope.altitude_m, envelope.grid[1]), max_mach)
+
+
+def lpv_validation_points(envelope: config.LpvEnvelopeConfig, max_mach: float, seed: int):
+    """Held-out flight points (Vcas m/s, h m) of the LPV fit, drawn with ``seed``."""
+    axes = [config.Axis("vcas_kt", "range", lo=envelope.vcas_kt[0], hi=envelope.vcas_kt[1]),
+            config.Axis("altitude_m", "range", lo=envelope.altitude_m[0], hi=envelope.altitude_m[1])]
+    cols, _ = scenarios.design_table(axes, envelope.validation_points, "lhs", seed, max_mach=max_mach)
+    return cols["vcas_kt"] * atmosphere.KT_TO_M_S, cols["altitude_m"]
+
+
+def lpv_nus(cfg: config.LpvFitConfig) -> np.ndarray:
+    """Fault parameters (N, 2) of the models to fit."""
+    return np.array([(m.nu1, m.nu2) for m in cfg.models])
+
+
+def lpv_manoeuvre_params(cfg: config.LpvFitConfig, split: str, dtype=np.float64) -> manoeuvres.ManoeuvreParams:
+    """The manoeuvres of ``cfg.manoeuvres(split)`` as one pytree with a leading axis, SI units."""
+    listed = cfg.manoeuvres(split)
+    cols = {"manoeuvre_kind": np.array([m.kind for m in listed])}
+    for name in config.ManoeuvreConfig.model_fields:
+        if name != "kind":
+            cols[name] = np.array([getattr(m, name) for m in listed])
+    return scenarios.to_scenario(cols, dtype).manoeuvre

@@ -1,0 +1,43 @@
+"""One JAX CPU device per core, set up when ``mcfdd`` is imported (before JAX starts its backends).
+
+Campaign batches are split over the devices with ``shard_map``; results do not depend on the
+number of devices, only the speed does.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import warnings
+
+FLAG = "--xla_force_host_platform_device_count"
+
+
+def use_all_cores() -> int | None:
+    """Expose every CPU core as a JAX device, unless ``XLA_FLAGS`` already sets the count.
+
+    Returns:
+        The device count requested, or None when the caller's ``XLA_FLAGS`` decide, or when
+        JAX had started its backends already (then a warning says how many devices it has).
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if FLAG in flags:
+        return None
+    count = os.cpu_count() or 1
+    if "jax" in sys.modules:
+        from jax._src import xla_bridge
+
+        if xla_bridge.backends_are_initialized():
+            import jax
+
+            if jax.device_count() < count:
+                warnings.warn(f"mcfdd: JAX started before mcfdd was imported and has {jax.device_count()} device(s) "
+                              f"for {count} CPU cores; results are the same, campaigns only slower. Import mcfdd "
+                              f"before using JAX, or set XLA_FLAGS={FLAG}={count} before starting Python.",
+                              stacklevel=3)
+            return None
+    os.environ["XLA_FLAGS"] = f"{flags} {FLAG}={count}".strip()
+    return count
+
+
+REQUESTED = use_all_cores()

@@ -1,0 +1,319 @@
+"""Monte-Carlo campaigns: set-up, chunks as independent tasks, resume, scoring (DESIGN.md sections 2, 5).
+
+A chunk is rebuilt from the config and its scenario ids alone (:func:`run_chunk`), so it can run
+in process or on any ``concurrent.futures.Executor``; the driver collects the chunk tables and,
+with an output folder, writes one Parquet part per chunk as they arrive.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from mcfdd import config, io
+from mcfdd.analysis import build
+from mcfdd.progress import bar, note
+from mcfdd.workflows.common import DEG_PER_RAD, as_config, dtype_of, load_bank, precision, save_figure
+
+CAMPAIGN_STATE = "campaign.json"
+# Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
+# same vectorised code, so results do not depend on the chunk size to the last bit.
+LANE_BLOCK = 64
+PLOTS = ("rates_by_fault", "rates_by_envelope", "rates_by_manoeuvre", "detection_times", "confusion", "detectability")
+
+
+class OutputFolderError(config.ConfigError):
+    """An output folder that cannot be used: not empty without resume, or holding another campaign."""
+
+
+class CampaignSetup(NamedTuple):
+    """What a campaign builds once before its chunk loop (host arrays over all n scenarios)."""
+
+    model: object
+    names: tuple
+    fdd_params: object
+    settings: object
+    cols: dict
+    n: int
+    onset: np.ndarray  # fault onset times (s), float64
+    nearest: np.ndarray
+    accept: np.ndarray
+    scenarios: object
+    kinds: tuple
+    dtype: type
+
+
+def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
+    """Plant, FDD, evaluation settings, the sampled design and each scenario's truth."""
+    from mcfdd.analysis import batch, scenarios
+
+    dtype = dtype_of(cfg.campaign.precision)
+    model = build.plant_model(cfg.plant)
+    bank, names = load_bank(cfg.fdd, dtype)
+    cols, n = build.design(cfg)
+    kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
+    nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind,
+                                           np.asarray(cols.get("fault_size", np.zeros(n))))
+    all_scenarios = scenarios.to_scenario(cols, dtype)
+    return CampaignSetup(model, names, build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m),
+                         build.settings(cfg.evaluation, model.actuator.r_arm_m), cols, n,
+                         scenarios.fault_onsets(cols, n), nearest, accept, all_scenarios,
+                         batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
+
+
+def chunk_size(requested: int, n: int) -> int:
+    """Scenarios per chunk: ``requested`` (at most n) rounded up to LANE_BLOCK x devices."""
+    import jax
+
+    block = LANE_BLOCK * jax.device_count()
+    return -(-min(requested, max(n, 1)) // block) * block
+
+
+def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
+    """Scenarios, truths and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
+    import jax
+
+    from mcfdd.analysis import campaign, simulate
+
+    padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
+    scen = jax.tree.map(lambda a: a[padded], setup.scenarios)
+    truth = campaign.Truth(setup.onset[padded].astype(setup.dtype), setup.accept[padded])
+    return scen, truth, simulate.run_keys(seed, padded)
+
+
+_SETUPS: dict = {}
+
+
+def _setup_of(cfg: config.CampaignConfig) -> CampaignSetup:
+    """The set-up of ``cfg``, built once per process for the chunks of one campaign."""
+    key = config.to_json(cfg)
+    if key not in _SETUPS:
+        _SETUPS.clear()
+        _SETUPS[key] = campaign_setup(cfg)
+    return _SETUPS[key]
+
+
+def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int) -> dict:
+    """Simulate and score the scenarios ``ids`` of a campaign, padded to ``size``.
+
+    Args:
+        cfg: the campaign config (the chunk is rebuilt from it alone, in whatever process).
+        ids: (k,) scenario ids, k <= size.
+        size: the padded batch size (:func:`chunk_size`), the same for every chunk.
+
+    Returns:
+        The chunk's rows of the scenario table: column name -> (k,) array.
+    """
+    from mcfdd.analysis import campaign, metrics
+
+    c = cfg.campaign
+    with precision(c.precision):
+        setup = _setup_of(cfg)
+        scen, truth, keys = chunk_inputs(setup, c.seed, ids, size)
+        raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
+                                 c.substeps, setup.kinds)
+        raw = {k: np.asarray(v)[:len(ids)] for k, v in raw.items()}
+    outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
+                            cfg.evaluation.t_detec_s)
+    table = {"scenario_id": ids, **{k: np.asarray(v)[ids] for k, v in setup.cols.items()}, **outc}
+    table.update(metrics.detectability_columns({k: np.asarray(v)[ids] for k, v in setup.cols.items()},
+                                               outc["peak_load_fraction"], metrics.uncertainty_ranges(setup.cols)))
+    for i in range(len(setup.names)):
+        table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
+        table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
+    return table
+
+
+def _resolved(cfg: config.CampaignConfig) -> dict:
+    """Resolved config without the chunk size, which does not change results."""
+    data = config.to_dict(cfg)
+    data["campaign"].pop("chunk_size")
+    return json.loads(json.dumps(data, default=str))
+
+
+def _state_text(cfg: config.CampaignConfig) -> str:
+    return json.dumps(_resolved(cfg), indent=1, sort_keys=True)
+
+
+def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
+    state = out / CAMPAIGN_STATE
+    if resume:
+        if not state.is_file():
+            raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
+        if json.loads(state.read_text()) != _resolved(cfg):
+            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with")
+        return
+    if out.exists() and any(out.iterdir()):
+        raise OutputFolderError(f"out: {out} exists and is not empty; resume it or choose another folder")
+    io.write_text(state, _state_text(cfg))
+
+
+def _part_name(first_id: int) -> str:
+    return f"part-{first_id:08d}.parquet"
+
+
+class CampaignResult:
+    """A finished campaign: its tables, provenance, figures and files.
+
+    Attributes:
+        scenarios: one row per scenario (sorted by ``scenario_id``): the sampled parameters (units
+            in the names), outcomes (false alarm, detection, identification, stall events, status
+            as :class:`mcfdd.Status` codes) and per filter i ``ratio_max_pre_i`` /
+            ``ratio_min_post_i`` (theta_i / ||u|| before the fault and in the detection window).
+        summary: FAR, MDR, identification and stall rates with Clopper-Pearson 95 % intervals,
+            overall and per stratum (column ``group``).
+        confusion: true nearest model (rows) against decided model (columns), counts.
+        gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector.
+        detectability: FAR and MDR per fault class, dynamic-pressure bin and peak-load-fraction
+            bin, each cell marked separable under the campaign's uncertainty or not.
+        meta: provenance (resolved config JSON, seed, version, git revision, model names).
+        models: names of the LPV bank's models, filter i = models[i].
+        simulated: how many scenarios this call simulated (fewer than the table's rows on resume).
+    """
+
+    def __init__(self, cfg: config.CampaignConfig, scenarios, parts: np.ndarray, models, meta: dict,
+                 simulated: int):
+        from mcfdd import report
+
+        self.config, self.scenarios, self.models, self.meta, self.simulated = cfg, scenarios, tuple(models), meta, \
+            simulated
+        self._parts = parts
+        deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
+        self.summary = report.summary(scenarios)
+        self.confusion = report.confusion(scenarios, list(models))
+        self.gaps = report.gaps(scenarios, deg_per_m)
+        self.detectability = report.detectability(scenarios)
+
+    def overall(self) -> dict:
+        """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
+        return self.summary[self.summary["group"] == "overall"].iloc[0].to_dict()
+
+    def plot(self, name: str):
+        """One of the campaign's figures, a matplotlib Figure.
+
+        Args:
+            name: 'rates_by_fault', 'rates_by_envelope', 'rates_by_manoeuvre', 'detection_times',
+                'confusion' or 'detectability'.
+        """
+        from mcfdd import plots, report
+
+        if name.startswith("rates_by_") and name in PLOTS:
+            return plots.rates_by_stratum(self.summary, name[len("rates_by_"):])
+        if name == "detection_times":
+            return plots.detection_times(self.scenarios, report.fault_class(self.scenarios))
+        if name == "confusion":
+            return plots.confusion_matrix(self.confusion)
+        if name == "detectability":
+            return plots.detectability(self.detectability)
+        raise ValueError(f"plot: {name!r} is not one of {', '.join(PLOTS)}")
+
+    def save(self, out, title: str = "Campaign") -> list[Path]:
+        """Write the files of ``mcfdd campaign`` into folder ``out``; returns their paths.
+
+        ``campaign.json`` (resolved config), ``scenarios/part-*.parquet`` (one part per chunk),
+        ``summary.parquet``, ``confusion.parquet``, ``gaps.parquet``, ``detectability.parquet``, ``summary.md`` (headed
+        ``title``) and a PNG per :attr:`PLOTS` name.
+        """
+        from mcfdd import report
+
+        out = Path(out)
+        written = [io.write_text(out / CAMPAIGN_STATE, _state_text(self.config))]
+        ids = self.scenarios["scenario_id"].to_numpy()
+        for part in np.unique(self._parts):
+            rows = self._parts == part
+            written.append(io.write_table(self.scenarios[rows].reset_index(drop=True),
+                                          out / "scenarios" / _part_name(int(ids[rows][0])), self.meta))
+        written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
+        written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
+        written.append(io.write_table(self.gaps, out / "gaps.parquet", self.meta))
+        written.append(io.write_table(self.detectability, out / "detectability.parquet", self.meta))
+        written.append(io.write_text(out / "summary.md", report.markdown(title, self.summary, self.confusion,
+                                                                         self.gaps, self.meta)
+                                     + report.detectability_markdown(self.detectability, self.scenarios)
+                                     + report.stall_scoring_markdown(self.scenarios)))
+        written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in PLOTS)
+        return written
+
+
+def _read_parts(parts_dir: Path, n: int):
+    """Tables already written under ``parts_dir`` with their part numbers, and which ids they hold."""
+    import pandas as pd
+
+    frames, labels, done = [], [], np.zeros(n, dtype=bool)
+    for part in sorted(parts_dir.glob("part-*.parquet")):
+        df = pd.read_parquet(part)
+        frames.append(df)
+        labels.append(np.full(len(df), int(part.stem.split("-")[1])))
+        done[df["scenario_id"].to_numpy()] = True
+    return frames, labels, done
+
+
+def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, executor=None, on_chunk=None,
+                 title: str = "Campaign") -> CampaignResult:
+    """Simulate and score every scenario of a campaign.
+
+    Args:
+        cfg: a campaign config (:func:`mcfdd.load_config`), or a TOML path or dict of one.
+        out: folder for the files of ``mcfdd campaign``, written as chunks finish (one Parquet
+            part each) and at the end; None runs in memory and writes nothing.
+        resume: continue the campaign in ``out``, simulating only the scenarios not yet written.
+        progress: a progress bar on stderr (rate, time left); False for silence.
+        executor: None to run chunks in this process, or a ``concurrent.futures.Executor`` to
+            which each chunk is submitted as a task (:func:`run_chunk`); the table is the same.
+        on_chunk: called with the (k,) ids of each chunk when it is done (e.g. to stop a run).
+        title: heading of ``summary.md`` when ``out`` is given.
+
+    Returns:
+        A :class:`CampaignResult`; ``.scenarios`` is bit for bit the table ``mcfdd campaign``
+        writes for the same config and seed, whatever the chunk size, devices or executor.
+
+    >>> import mcfdd
+    >>> cfg = mcfdd.load_config({"campaign": {"scenarios": 2, "duration_s": 0.1}})
+    >>> result = mcfdd.run_campaign(cfg, progress=False)
+    >>> len(result.scenarios), int(result.overall()["runs"])
+    (2, 2)
+    """
+    import pandas as pd
+
+    cfg = as_config(cfg, "campaign")
+    c = cfg.campaign
+    with precision(c.precision):
+        setup = _setup_of(cfg)
+        size = chunk_size(c.chunk_size, setup.n)
+    n, names = setup.n, setup.names
+    if out is not None:
+        out = Path(out)
+        _prepare_dir(out, cfg, resume)
+    frames, labels, done = _read_parts(out / "scenarios", n) if out is not None and resume else ([], [], np.zeros(
+        n, dtype=bool))
+    todo = np.flatnonzero(~done)
+    meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
+    chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+    note(f"campaign: {n} scenarios of {c.duration_s} s ({c.n_steps} steps, {c.precision}), {len(todo)} to run in "
+         f"{len(chunks)} chunk(s) of {size}", progress)
+    with bar(len(todo), "scenarios", progress, unit="scen") as shown:
+        if executor is None:
+            finished = ((ids, run_chunk(cfg, ids, size)) for ids in chunks)
+        else:
+            futures = {executor.submit(run_chunk, cfg, ids, size): ids for ids in chunks}
+            finished = ((futures[f], f.result()) for f in concurrent.futures.as_completed(futures))
+        for ids, table in finished:
+            frame = pd.DataFrame(table)
+            if out is not None:
+                io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
+            frames.append(frame)
+            labels.append(np.full(len(ids), int(ids[0])))
+            shown.update(len(ids))
+            if on_chunk is not None:
+                on_chunk(ids)
+    table = pd.concat(frames, ignore_index=True)
+    order = np.argsort(table["scenario_id"].to_numpy(), kind="stable")
+    result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
+                            len(todo))
+    if out is not None:
+        result.save(out, title)
+    return result
