@@ -1,7 +1,7 @@
 """Test set-up for the whole repository (tests and doctests): two JAX host devices, float64 numerics.
 
 The device count is fixed before JAX starts, so the sharded campaign path is tested whatever the
-machine or the test order; ``tests/test_campaign.py`` compares one run on a single device.
+machine or the test order; ``tests/test_layout.py`` compares runs on 1, 2 and 3 devices.
 """
 
 import os
