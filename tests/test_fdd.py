@@ -362,8 +362,10 @@ def test_excitation_band_pass_is_zoh_cascade():
 
 def test_gated_filters_restart_from_equilibrium(bank):
     """While evaluation is suspended (here: tracking error beyond the linear range) every residual and
-    the band-pass input are zero and, once the gate reopens, the run equals a fresh start at that
-    sample from the measured position: no transient of the gated interval survives it."""
+    the band-pass input are zero and, once the gate reopens, the run equals a fresh start at the first
+    ungated sample from the measured position: no transient of the gated interval survives it, not
+    even the first-order prediction of the last saturated sample (which a start at that sample carries
+    into the first residual after the gate)."""
     params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, linear_range_deg=3.5)), bank,
                               r_arm_m=R_ARM_M)
     n, jump = 600, 100
@@ -385,15 +387,22 @@ def test_gated_filters_restart_from_equilibrium(bank):
         return jax.lax.scan(body, state, (u_c, u, t0 + np.arange(u_c.size) * DT_S))[1]
 
     r, theta, theta_u = (np.asarray(x) for x in jax.jit(run)(system.init(params, u[0]), u_c, u, 0.0))
-    assert np.all(r[gated] == 0.0)
-    last = reopen - 1  # the last gated sample: a fresh start there, evaluators holding what they had
-    fresh = system.init(params, u[last])._replace(bank_xi=jnp.asarray(theta[last]),
-                                                  band_xi=jnp.asarray(theta_u[last]))
-    r2, theta2, theta_u2 = (np.asarray(x) for x in jax.jit(run)(fresh, u_c[last:], u[last:], last * DT_S))
-    np.testing.assert_allclose(r[last:], r2, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(theta[last:], theta2, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(theta_u[last:], theta_u2, rtol=0, atol=1e-15)
+    assert np.all(r[gated] == 0.0) and np.all(r[reopen] == 0.0)
+
+    def fresh_start(i):  # filters in equilibrium at u[i], evaluators holding what they had
+        state = system.init(params, u[i])._replace(bank_xi=jnp.asarray(theta[i]), band_xi=jnp.asarray(theta_u[i]))
+        return (np.asarray(x) for x in jax.jit(run)(state, u_c[i:], u[i:], i * DT_S))
+
+    r2, theta2, theta_u2 = fresh_start(reopen)
+    np.testing.assert_allclose(r[reopen:], r2, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(theta[reopen:], theta2, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(theta_u[reopen:], theta_u2, rtol=0, atol=1e-15)
     assert np.max(np.abs(r[reopen:])) > 0.0 and np.max(np.abs(r[:jump])) > 0.0
+    last = reopen - 1  # a filter started at the last gated sample steps with its saturated error
+    k = lpv.gains(bank, u[last], np.sign(u_c[last] - u[last]), VCAS_M_S, ALT_M)
+    x_q, _ = residual.step(residual.init(u[last]), u[last], u_c[last], k, bank.k0, params.loe.pole, DT_S)
+    r_carried = residual.step(x_q, u[reopen], u_c[reopen], k, bank.k0, params.loe.pole, DT_S)[1]
+    assert np.min(np.abs(r_carried)) > 1e-3 * DEG_M  # where the restart gives exactly 0
 
 
 @pytest.mark.parametrize("iota, excited, expected", [

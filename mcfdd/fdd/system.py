@@ -7,11 +7,12 @@
   bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
   no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction`` and the tracking
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
-  which no first-order model follows). While evaluation is suspended the bank's filters and the
-  excitation band-pass restart at every sample from equilibrium with the measured position
-  (residual 0, ||u|| input 0), so no filter carries a transient of the gated interval out of it:
-  after the gate reopens, every residual and ||u|| are driven by the same measured tracking
-  error from zero. While a stall
+  which no first-order model follows). While evaluation is suspended, and at the first sample
+  after (the last gated sample's step propagates the first-order prediction of a saturated
+  sample, which the rod did not follow), the bank's filters and the excitation band-pass restart
+  from equilibrium with the measured position (residual 0, ||u|| input 0), so no filter carries a
+  transient of the gated interval out of it: after the gate reopens, every residual and ||u||
+  are driven by the same measured tracking error from zero. While a stall
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
@@ -69,6 +70,7 @@ class FddState(NamedTuple):
     bank_xi: jnp.ndarray
     band: jnp.ndarray
     band_xi: jnp.ndarray
+    was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
     confirm: tuple
     detect: tuple
     since_stall: jnp.ndarray
@@ -118,6 +120,7 @@ def init(params: FddParams, u0) -> FddState:
         bank_xi=jnp.zeros_like(bank_xq),
         band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
+        was_valid=jnp.asarray(True),
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
         since_stall=jnp.asarray(jnp.inf, u0.dtype),
@@ -137,10 +140,11 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
 
     load = load_fraction(bank, k)
     valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
-    bank_xq = jnp.where(valid, state.bank_xq, residual.init(u))
+    running = valid & state.was_valid
+    bank_xq = jnp.where(running, state.bank_xq, residual.init(u))
     bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
-    band = jnp.where(valid, state.band, decision.excitation_init(u))
+    band = jnp.where(running, state.band, decision.excitation_init(u))
     band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
     band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
     tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
@@ -160,6 +164,6 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, confirm, detect, since_stall, stall_xq, stall_xi, signal, model)
+    new = FddState(bank_xq, bank_xi, band, band_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal, model)
     return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, fault == 1, r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
