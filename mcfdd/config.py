@@ -255,7 +255,8 @@ class AircraftConfig(Section):
     monitored_share: float = spec(0.5, lo=0.0, hi=1.0, doc="share of roll power of the monitored aileron")
     max_mach: float = spec(0.82, lo=0.1, hi=0.95, doc="flight points above this Mach number are refused")
     model: Literal[AIRCRAFT_MODELS] = spec("roll_axis", doc="roll_axis: the fast roll axis at a fixed flight "
-                                           "point; rcam: the GARTEUR RCAM 6-DoF aircraft in closed loop (Vcas, h and alpha vary in a run)")
+                                           "point; rcam: the GARTEUR RCAM 6-DoF aircraft in closed loop (Vcas, h "
+                                           "and alpha vary in a run)")
 
 
 class ControlLawConfig(Section):

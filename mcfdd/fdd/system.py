@@ -164,6 +164,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal, model)
+    new = FddState(bank_xq, bank_xi, band, band_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal,
+                   model)
     return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, fault == 1, r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
