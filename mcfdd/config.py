@@ -329,6 +329,8 @@ class RunConfig(Section):
     hinge_scale: float = spec(1.0, lo=0.0, hi=3.0)
     roll_inertia_scale: float = spec(1.0, lo=0.5, hi=1.5)
     mass_scale: float = spec(1.0, lo=0.7, hi=1.2, doc="full aircraft: mass over the nominal 120 t (trim and inertia)")
+    seed: int | None = spec(None, lo=0, doc="turbulence and sensor noise of this run; unset, every run of the "
+                            "config draws the same ones (from simulation.seed), so runs are paired")
     fault: FaultConfig = spec(FaultConfig())
     manoeuvre: ManoeuvreConfig = spec(ManoeuvreConfig())
 
@@ -1063,6 +1065,8 @@ def json_schema(kind: str) -> dict:
 def _without_none(data):
     if isinstance(data, dict):
         return {k: _without_none(v) for k, v in data.items() if v is not None}
+    if isinstance(data, (list, tuple)):
+        return [_without_none(v) for v in data]
     return data
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import mcfdd
 from mcfdd import cli, config, io
 from mcfdd.analysis import build
 
@@ -393,3 +394,34 @@ def test_fig3_leakage_lags_fault_free(simulated):
     mean = error.groupby(df["run"][window].to_numpy()).mean()
     free = next(run.name for run in cfg.runs if run.fault.kind == "none")
     assert mean[leak.name] > mean[free]
+
+
+def test_fig3_runs_are_paired_before_the_onset(simulated):
+    """Runs of one config share turbulence and sensor noise: before the 15 s onset the faulty and the
+    fault-free run of fig3 are identical to the last bit in every plant and FDD signal; after it the
+    deflections differ."""
+    out, cfg = simulated["fig3"]
+    df = pd.read_parquet(out / "timeseries.parquet")
+    leak = next(run for run in cfg.runs if run.fault.kind == "leakage")
+    free = next(run for run in cfg.runs if run.fault.kind == "none")
+    a, b = (df[df["run"] == run.name].drop(columns="run").reset_index(drop=True) for run in (free, leak))
+    before = (a["t_s"] < leak.fault.onset_s).to_numpy()
+    assert before.sum() == round(leak.fault.onset_s / cfg.simulation.dt_s)
+    for name in a.columns:
+        np.testing.assert_array_equal(a[name].to_numpy()[before], b[name].to_numpy()[before], err_msg=name)
+    after = np.abs(a["delta_deg"].to_numpy() - b["delta_deg"].to_numpy())[~before]
+    assert after.max() > 0.1
+
+
+def test_a_run_with_its_own_seed_draws_its_own_noise():
+    """Unset, a run draws simulation.seed's numbers; ``seed`` on a run gives it its own, the same for
+    every run of that seed."""
+    run = {"turbulence": "moderate", "vcas_kt": 300.0}
+    df = mcfdd.simulate({"simulation": {"duration_s": 0.5, "seed": 4},
+                         "runs": [{"name": "shared", **run}, {"name": "own", "seed": 9, **run},
+                                  {"name": "own-again", "seed": 9, **run}, {"name": "explicit", "seed": 4, **run}]},
+                        progress=False).to_pandas()
+    u = {name: g["u_m"].to_numpy() for name, g in df.groupby("run")}
+    np.testing.assert_array_equal(u["own"], u["own-again"])
+    np.testing.assert_array_equal(u["shared"], u["explicit"])
+    assert np.abs(u["own"] - u["shared"]).max() > 0.0

@@ -9,7 +9,7 @@ import numpy as np
 from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.workflows.common import load_bank, save_figure
-from mcfdd.workflows.simulate import histories, runs_table
+from mcfdd.workflows.simulate import histories, run_histories
 
 
 def stall_latencies(run, dt_s: float):
@@ -77,8 +77,7 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
     fig4_cfg = config.load_config(folder / "fig4.toml", "sweep")
     fig5_cfg = config.load_config(folder / "fig5.toml", "simulate")
     figures = {}
-    df3, _ = histories(fig3_cfg.simulation, fig3_cfg.plant, fig3_cfg.fdd, runs_table(fig3_cfg.runs),
-                       [r.name for r in fig3_cfg.runs], progress)
+    df3, _ = run_histories(fig3_cfg.simulation, fig3_cfg.plant, fig3_cfg.fdd, fig3_cfg.runs, progress)
     free = next(r for r in fig3_cfg.runs if r.fault.kind == "none")
     faulty = next(r for r in fig3_cfg.runs if r.fault.kind != "none")
     figures["fig3"] = plots.fig3(df3, free.name, faulty.name, faulty.fault.onset_s)
@@ -102,8 +101,7 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
             "leakage": sorted(1.0 - nu[np.isclose(nu[:, 1], 1.0), 0])}
     figures["fig4"] = plots.fig4(sweep, names, grid)
 
-    df5, _ = histories(fig5_cfg.simulation, fig5_cfg.plant, fig5_cfg.fdd, runs_table(fig5_cfg.runs),
-                       [r.name for r in fig5_cfg.runs], progress)
+    df5, _ = run_histories(fig5_cfg.simulation, fig5_cfg.plant, fig5_cfg.fdd, fig5_cfg.runs, progress)
     run5 = df5[df5["run"] == fig5_cfg.runs[0].name]
     figures["fig5"] = plots.fig5(run5)
     figures["fig6"] = plots.fig6(run5, fig5_cfg.plant.actuator.max_deflection_deg)

@@ -20,13 +20,25 @@ def runs_table(runs) -> dict:
     return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
 
+def run_histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_cfg: config.FddConfig, runs,
+                  progress: bool = True):
+    """:func:`histories` of a config's ``[[runs]]``, each with its own ``seed`` where it sets one."""
+    return histories(sim, plant_cfg, fdd_cfg, runs_table(runs), [r.name for r in runs], progress,
+                     [r.seed for r in runs])
+
+
 def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_cfg: config.FddConfig, table: dict,
-              run_names, progress: bool = True):
+              run_names, progress: bool = True, seeds=None):
     """Simulate the runs of a scenario table with plant and FDD in one batch.
+
+    Runs are paired: each draws its turbulence and sensor noise from ``run_keys(seed, [0])`` with
+    its entry of ``seeds`` (None, or no ``seeds`` at all, for ``sim.seed``), so runs of one seed
+    see the same random numbers and differ only by their parameters.
 
     Returns (tidy DataFrame of time histories, LPV model names).
     """
     import jax
+    import jax.numpy as jnp
 
     from mcfdd.analysis import batch, simulate
     from mcfdd.analysis.scenarios import to_scenario
@@ -39,7 +51,9 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         fdd_params = build.fdd_params(fdd_cfg, bank, model.actuator.r_arm_m)
         scenarios = to_scenario(table, dtype)
         kinds = batch.kinds_in(scenarios.manoeuvre.kind)
-        keys = simulate.run_keys(sim.seed, range(len(run_names)))
+        seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
+        unique, inverse = np.unique(seeds, return_inverse=True)
+        keys = jnp.concatenate([simulate.run_keys(int(s), [0]) for s in unique])[inverse]
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",
              progress)
         start = time.perf_counter()
@@ -152,7 +166,6 @@ def simulate(cfg, progress: bool = True) -> Histories:
     (['quiet'], 5)
     """
     cfg = as_config(cfg, "simulate")
-    frame, names = histories(cfg.simulation, cfg.plant, cfg.fdd, runs_table(cfg.runs), [r.name for r in cfg.runs],
-                             progress)
+    frame, names = run_histories(cfg.simulation, cfg.plant, cfg.fdd, cfg.runs, progress)
     return Histories(frame, names, io.provenance(config.to_json(cfg), cfg.simulation.seed, models=list(names)),
                      cfg.simulation.dt_s)
