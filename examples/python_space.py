@@ -33,5 +33,5 @@ cfg = mcfdd.load_config({
     "space": space,
 })
 result = mcfdd.run_campaign(cfg)
-rates = result.summary[result.summary["group"].isin(["overall", "manoeuvre"])]
-print(rates[["group", "stratum", "runs", "mdr", "mdr_lo", "mdr_hi", "detection_time_median_s"]].to_string(index=False))
+rates = result.summary[result.summary["stratum"].isin(["overall", "manoeuvre"])]
+print(rates[["stratum", "label", "runs", "mdr", "mdr_lo", "mdr_hi", "detection_time_median_s"]].to_string(index=False))

@@ -69,23 +69,52 @@ def flight_state(df: pd.DataFrame, title: str) -> Figure:
     return fig
 
 
-def rates_by_stratum(summ: pd.DataFrame, group: str) -> Figure:
-    """FAR and MDR with their exact 95 % intervals for each stratum of one grouping."""
-    sub = summ[summ["group"] == group]
-    fig = Figure(figsize=(9, 1.2 + 0.35 * len(sub)), constrained_layout=True)
-    axes = fig.subplots(1, 2, sharey=True)
+RATE_PANELS = {"far": ("false_alarms", "runs", "false-alarm rate (any alarm)"),
+               "mdr": ("missed", "faulty_runs", "missed-detection rate")}
+
+
+def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far", "mdr")) -> Figure:
+    """Rates (``rates``: 'far', 'mdr') with their exact 95 % intervals for each label of one stratum.
+
+    Each panel has its own scale: logarithmic when a rate or bound lies below 0.1 (FAR of a few
+    1e-3 stays readable), else linear from 0 to 1. A zero count is drawn as a bar up to its upper
+    bound; every row is annotated with k/n.
+    """
+    sub = summ[summ["stratum"] == stratum]
     y = np.arange(len(sub))
-    for ax, (name, lo, hi, title) in zip(axes, (("far", "far_lo", "far_hi", "false-alarm rate"),
-                                               ("mdr", "mdr_lo", "mdr_hi", "missed-detection rate"))):
-        value = sub[name].to_numpy(dtype=float)
-        err = np.vstack([value - sub[lo].to_numpy(dtype=float), sub[hi].to_numpy(dtype=float) - value])
-        ax.errorbar(value, y, xerr=np.nan_to_num(err), fmt="o", capsize=3)
-        ax.set_xlim(-0.02, 1.02)
-        ax.set_title(f"{title} (95 % CI)")
+    width = 1.0 + 0.075 * max(len(str(label)) for label in sub["label"])
+    fig = Figure(figsize=(width + 4.2 * len(rates), 1.3 + 0.36 * len(sub)), constrained_layout=True)
+    axes = np.atleast_1d(fig.subplots(1, len(rates), sharey=True, squeeze=False)[0])
+    for ax, name in zip(axes, rates):
+        count, total, title = RATE_PANELS[name]
+        k, n = sub[count].to_numpy(dtype=int), sub[total].to_numpy(dtype=int)
+        value, lo, hi = (sub[c].to_numpy(dtype=float) for c in (name, f"{name}_lo", f"{name}_hi"))
+        shown = np.concatenate([lo[(n > 0) & (lo > 0.0)], hi[n > 0]])
+        log = shown.size > 0 and shown.min() < 0.1
+        left = 10.0 ** np.floor(np.log10(shown.min() / 2.0)) if log else 0.0
+        some, zero = (n > 0) & (k > 0), (n > 0) & (k == 0)
+        ax.errorbar(value[some], y[some], xerr=[value[some] - lo[some], hi[some] - value[some]], fmt="o", capsize=3,
+                    color="C0", label="rate, 95 % interval")
+        if zero.any():
+            ax.hlines(y[zero], left, hi[zero], color="C1", lw=2.0)
+            ax.plot(hi[zero], y[zero], "|", color="C1", ms=10, mew=2.0, label="0 counted: up to the upper bound")
+        for row in range(len(sub)):
+            text = f"{k[row]}/{n[row]}" if n[row] > 0 else f"no {total.replace('_', ' ')}"
+            ax.annotate(text, (1.0, y[row]), xycoords=("axes fraction", "data"), xytext=(4, 0),
+                        textcoords="offset points", va="center", fontsize=7)
+        if log:
+            ax.set_xscale("log")
+        ax.set_xlim(left, 1.0)
+        ax.set_xlabel(f"{title} ({'log scale' if log else 'linear scale'})")
         ax.grid(alpha=0.3)
-    axes[0].set_yticks(y, sub["stratum"])
+    axes[0].set_yticks(y, sub["label"])
     axes[0].invert_yaxis()
-    fig.suptitle(f"by {group}")
+    legend = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    fig.legend(legend.values(), legend.keys(), loc="outside lower center", ncols=2, fontsize=7)
+    fig.suptitle(f"by {stratum}: rates with exact Clopper-Pearson 95 % intervals")
     return fig
 
 
@@ -93,28 +122,73 @@ def detection_times(df: pd.DataFrame, classes: pd.Series) -> Figure:
     """Distribution of detection latency per fault class (detected runs)."""
     detected = df["detected"].to_numpy(dtype=bool)
     labels = sorted(set(classes[detected]))
-    fig = Figure(figsize=(9, 1.2 + 0.4 * max(len(labels), 1)), constrained_layout=True)
+    fig = Figure(figsize=(9, 1.4 + 0.4 * len(labels)), constrained_layout=True)
     ax = fig.subplots()
     data = [df.loc[detected & (classes == c), "detection_latency_s"].to_numpy() for c in labels]
-    if data:
-        ax.boxplot(data, orientation="horizontal", tick_labels=labels, whis=(0, 95))
-    ax.set_xlabel("detection time after fault onset (s); whiskers: min and 95th percentile")
+    ax.boxplot(data, orientation="horizontal", tick_labels=[f"{c} ({len(d)})" for c, d in zip(labels, data)],
+               whis=(0, 95))
+    ax.set_xlabel("detection time after fault onset (s); whiskers: min and 95th percentile; (detected runs)")
     ax.grid(alpha=0.3)
     return fig
 
 
-def confusion_matrix(conf: pd.DataFrame) -> Figure:
-    """Heat map of true against decided model counts."""
-    fig = Figure(figsize=(1.8 + 1.1 * conf.shape[1], 1.5 + 0.5 * conf.shape[0]), constrained_layout=True)
-    ax = fig.subplots()
-    values = conf.to_numpy()
-    ax.imshow(values, cmap="Blues")
-    ax.set_xticks(range(conf.shape[1]), conf.columns, rotation=30, ha="right")
-    ax.set_yticks(range(conf.shape[0]), conf.index)
+def _heat_map(ax, table: pd.DataFrame, xlabel: str, ylabel: str):
+    values = table.to_numpy()
+    ax.imshow(values, cmap="Blues", vmin=0, vmax=max(int(values.max()), 1), aspect="auto")
+    ax.set_xticks(range(table.shape[1]), table.columns, rotation=30, ha="right")
+    ax.set_yticks(range(table.shape[0]), table.index)
     for (i, j), v in np.ndenumerate(values):
         ax.text(j, i, str(v), ha="center", va="center", color="white" if v > values.max() / 2 else "black")
-    ax.set_xlabel("decided model")
-    ax.set_ylabel("true (nearest) model")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+
+
+def confusion_matrix(conf: pd.DataFrame, stall: pd.DataFrame | None = None) -> Figure:
+    """Heat map of true against decided model counts; with ``stall`` (:func:`mcfdd.report.stall_confusion`)
+    a second one of stall loads, jammed rods and the other runs against eta = 1."""
+    width = 2.6 + 1.0 * conf.shape[1] + (0.0 if stall is None else 2.6 + 1.2 * stall.shape[1])
+    rows = max(conf.shape[0], 0 if stall is None else stall.shape[0])
+    fig = Figure(figsize=(width, 3.0 + 0.45 * rows), constrained_layout=True)
+    if stall is None:
+        _heat_map(fig.subplots(), conf, "decided model (identification)", "true (nearest) model")
+        return fig
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [conf.shape[1] + 1.5, stall.shape[1] + 1.5]})
+    _heat_map(left, conf, "decided model (identification)", "true (nearest) model")
+    _heat_map(right, stall, "stall identification", "truth")
+    left.set_title("LOE identification (runs)", fontsize=10)
+    right.set_title("stall identification (events; runs)", fontsize=10)
+    return fig
+
+
+def stall_latency(df: pd.DataFrame, window_s: float) -> Figure:
+    """Cumulative distribution of each run's worst stall-identification latency, per identification method.
+
+    A run counts once it has identified every one of its relevant stall events; runs with an event
+    not identified never reach the curve's end. The vertical line is the stall window (0.5 s in
+    the paper's claim).
+    """
+    runs = df[(df["status"] == 0) & (df["stall_events"] > 0)]
+    fig = Figure(figsize=(8, 4.5), constrained_layout=True)
+    ax = fig.subplots()
+    largest = window_s
+    for i, (method, name) in enumerate((("signal", "signal rules (32)-(35)"), ("model", "model detection (30)"))):
+        complete = runs[f"stall_identified_{method}"].to_numpy() == runs["stall_events"].to_numpy()
+        latency = np.sort(np.where(complete, runs[f"stall_worst_latency_{method}_s"].to_numpy(dtype=float), np.inf))
+        finite = latency[np.isfinite(latency)]
+        largest = max(largest, float(finite.max()) if finite.size else 0.0)
+        within = int((latency <= window_s).sum())
+        frac = np.arange(1, len(latency) + 1) / len(latency)
+        ax.step(np.concatenate([[0.0], finite]), np.concatenate([[0.0], frac[:finite.size]]), where="post",
+                color=f"C{i}", label=f"{name}: {within}/{len(latency)} runs within {window_s:g} s, "
+                                     f"{len(latency) - finite.size} with an event not identified")
+    ax.axvline(window_s, color="r", ls="--", lw=1.0, label=f"stall window {window_s:g} s")
+    ax.set_xlim(0.0, 1.1 * largest)
+    ax.set_ylim(0.0, 1.02)
+    ax.set_xlabel("worst identification latency of the run's relevant stall loads: first eta = 1 - onset (s)")
+    ax.set_ylabel(f"fraction of the {len(runs)} runs with stall loads")
+    ax.set_title("Stall-load identification latency")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
     return fig
 
 
@@ -196,7 +270,7 @@ def fig3(df: pd.DataFrame, fault_free: str, faulty: str, onset_s: float) -> Figu
     ax1.grid(alpha=0.3)
     ax2.plot(t, b["delta_deg"].to_numpy() - a["delta_deg"].to_numpy(), color="C3")
     ax2.axvline(onset_s, color="r", lw=0.8)
-    ax2.set_ylabel("difference (deg)")
+    ax2.set_ylabel(f"delta, {faulty}\nminus {fault_free} (deg)")
     ax2.set_xlabel("time (s)")
     ax2.grid(alpha=0.3)
     return fig
@@ -220,25 +294,31 @@ def fig4(sweep: pd.DataFrame, model_names, grid_values: dict) -> Figure:
     return fig
 
 
-def fig5(run: pd.DataFrame) -> Figure:
-    """Paper Fig. 5: command and output, normalised available pressure, stall-detector residual."""
+def fig5(run: pd.DataFrame, tau_deg: float) -> Figure:
+    """Paper Fig. 5: command and output, normalised available pressure, stall-detector residual with its
+    evaluation theta (eq. 14) and the threshold ``tau_deg`` of eq. (25)."""
     t = run["t_s"].to_numpy()
     fig = Figure(figsize=(9, 7), constrained_layout=True)
     ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
     ax1.plot(t, run["u_c_deg"], label="u_c")
     ax1.plot(t, run["u_deg"], label="u")
     ax1.set_ylabel("deflection (deg)")
-    ax1.legend(loc="upper right")
     ax1.set_title("Stall loads during a high-input manoeuvre (paper Fig. 5)")
     ax2.plot(t, run["dp_avail_norm"], color="C2")
     ax2.axhline(0.0, color="k", lw=0.8)
     ax2.set_ylabel("(dP - sgn(xdot) F/S) / dP")
-    ax3.plot(t, run["r_stall_deg"], color="C3")
-    ax3.set_ylabel("residual r (deg)")
+    ax3.plot(t, run["r_stall_deg"], color="C3", label="residual r (20)")
+    ax3.plot(t, run["theta_stall_deg"], color="C4", lw=1.0, label="evaluation theta (14)")
+    ax3.axhline(tau_deg, color="k", ls="--", lw=1.0, label=f"threshold tau = {tau_deg:g} deg (25)")
+    ax3.set_ylabel("residual, evaluation (deg)")
     ax3.set_xlabel("time (s)")
-    for ax in (ax1, ax2, ax3):
+    _shade(ax1, t, run["stall"], color="red", alpha=0.12, label="stall load")
+    for ax in (ax2, ax3):
         _shade(ax, t, run["stall"], color="red", alpha=0.12)
+    for ax in (ax1, ax2, ax3):
         ax.grid(alpha=0.3)
+    ax1.legend(loc="upper right")
+    ax3.legend(loc="upper right", fontsize=8)
     return fig
 
 
@@ -264,31 +344,35 @@ def fig6(run: pd.DataFrame, max_deflection_deg: float) -> Figure:
 
 
 def search_history(df: pd.DataFrame, value: str, smooth: str, label: str, bound: str) -> Figure:
-    """Worst-case search: the bound per gradient iteration for each start (smooth value dashed),
-    beside the best of the screening and of Monte Carlo with the same number of simulations.
+    """Worst-case search: the bound per gradient iteration for each start (its smooth value dashed),
+    beside the best of the screening and of Monte Carlo with the same number of simulations and with
+    the same run time.
 
     ``df`` has one row per simulation with ``method``, ``start``, ``iteration`` and the columns
     ``value`` (hard bound) and ``smooth``; ``label`` names the bound on the axis; ``bound`` is 'free'
     (the worst case is the largest value) or 'detect' (the smallest).
     """
-    fig = Figure(figsize=(8, 4.5), constrained_layout=True)
+    fig = Figure(figsize=(9, 5), constrained_layout=True)
     ax = fig.subplots()
     grad = df[df["method"] == "gradient"]
     for i, (start, g) in enumerate(grad.groupby("start")):
         g = g.sort_values("iteration")
-        ax.plot(g["iteration"], g[value], "o-", color=f"C{i % 10}", ms=3, label=f"start {start}")
-        ax.plot(g["iteration"], g[smooth], "--", color=f"C{i % 10}", lw=0.8)
-    for method, style, name in (("screening", ":", "best of the screening"),
-                                ("monte_carlo", "-.", "Monte Carlo, equal simulations")):
-        values = df.loc[df["method"] == method, value].to_numpy(dtype=float)
+        ax.plot(g["iteration"], g[value], "o-", color=f"C{i % 10}", ms=3, label=f"start {start}: bound")
+        ax.plot(g["iteration"], g[smooth], "--", color=f"C{i % 10}", lw=0.8,
+                label=f"start {start}: smooth bound the gradient follows")
+    for methods, style, color, name in (
+            (("screening",), ":", "k", "best of the screening"),
+            (("monte_carlo",), "-.", "k", "Monte Carlo, equal number of simulations"),
+            (("monte_carlo", "monte_carlo_extra"), "-.", "C7", "Monte Carlo, equal run time")):
+        values = df.loc[df["method"].isin(methods), value].to_numpy(dtype=float)
         values = values[np.isfinite(values)]
         if values.size:
             best = values.max() if bound == "free" else values.min()
-            ax.axhline(best, color="k", ls=style, lw=1.0, label=name)
+            ax.axhline(best, color=color, ls=style, lw=1.2, label=f"{name} ({values.size} runs)")
     ax.set_xlabel("gradient iteration")
     ax.set_ylabel(label)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig
 
 

@@ -35,10 +35,23 @@ def fault_class(df: pd.DataFrame) -> pd.Series:
     return labels
 
 
+def _band_labels(edges, unit: str, scale: float = 1.0, below: bool = False) -> list[str]:
+    """Readable labels of the bins ``[edges[i], edges[i + 1])`` in ``unit`` (edges / ``scale``): ``a-b``
+    (a below 0 shown as 0), the last ``>= a`` and, with ``below``, the first ``< b``."""
+    shown = [f"{max(e, 0.0) / scale:g}" for e in edges]
+    labels = [f"{lo}-{hi} {unit}" for lo, hi in zip(shown[:-1], shown[1:])]
+    if below:
+        labels[0] = f"< {shown[1]} {unit}"
+    labels[-1] = f">= {shown[-2]} {unit}"
+    return labels
+
+
 def envelope_bin(df: pd.DataFrame) -> pd.Series:
-    v = pd.cut(df["vcas_kt"], VCAS_BINS_KT, right=False).astype(str)
-    h = pd.cut(df["altitude_m"], ALTITUDE_BINS_M, right=False).astype(str)
-    return "vcas_kt " + v + ", altitude_m " + h
+    """Envelope cell of each run, e.g. ``< 200 kt, 0-3 km``; categories ordered by speed, then altitude."""
+    v = pd.cut(df["vcas_kt"], VCAS_BINS_KT, right=False, labels=_band_labels(VCAS_BINS_KT, "kt", below=True))
+    h = pd.cut(df["altitude_m"], ALTITUDE_BINS_M, right=False, labels=_band_labels(ALTITUDE_BINS_M, "km", 1000.0))
+    order = [f"{a}, {b}" for a in v.cat.categories for b in h.cat.categories]
+    return pd.Series(pd.Categorical(v.astype(str) + ", " + h.astype(str), categories=order), index=df.index)
 
 
 def _rates(group: pd.DataFrame) -> dict:
@@ -81,28 +94,44 @@ def _rates(group: pd.DataFrame) -> dict:
 
 
 def summary(df: pd.DataFrame) -> pd.DataFrame:
-    """Rates per stratum: overall, fault class, envelope bin, manoeuvre and turbulence. Tidy."""
+    """Rates per stratum (``overall``, ``fault``, ``envelope``, ``manoeuvre``, ``turbulence``) and, within it,
+    per ``label`` (fault class, envelope cell such as ``< 200 kt, 0-3 km``, ...). Tidy."""
     strata = {"overall": pd.Series("all", index=df.index), "fault": fault_class(df), "envelope": envelope_bin(df),
               "manoeuvre": df["manoeuvre_kind"].astype(str), "turbulence": df["turbulence"].astype(str)}
     rows = []
-    for group_name, labels in strata.items():
-        for label, group in df.groupby(labels, sort=True):
-            rows.append({"group": group_name, "stratum": str(label), **_rates(group)})
+    for stratum, labels in strata.items():
+        for label, group in df.groupby(labels, sort=True, observed=True):
+            rows.append({"stratum": stratum, "label": str(label), **_rates(group)})
     return pd.DataFrame(rows)
 
 
 def confusion(df: pd.DataFrame, model_names) -> pd.DataFrame:
-    """Counts of true (nearest) model against the first identified fault model (-1: none), parametric and
-    fault-free runs (where an identification is a false one). The identification level, apart from detection."""
-    ok = df["status"] == 0
-    parametric = df["fault_kind"].isin(("none", "leakage", "surface_damage", "disconnection")) & ok
-    sub = df[parametric]
+    """Counts of true (nearest) model against the first identified fault model (-1: none), parametric,
+    fault-free (where an identification is a false one) and jammed runs (row ``jamming``: what the bank
+    decides on a jammed rod). The identification level, apart from detection."""
+    sub = df[df["status"] == 0]
     names = list(model_names)
-    true_names = [names[i] for i in sub["true_model"]]
+    true_names = [names[i] if i >= 0 else "jamming" for i in sub["true_model"]]
     decided_names = [names[i] if i >= 0 else "no decision" for i in sub["identified_model"]]
     table = pd.crosstab(pd.Series(true_names, name="true_model"), pd.Series(decided_names, name="decided_model"))
     columns = [n for n in names + ["no decision"] if n in table.columns]
-    return table.reindex(index=[n for n in names if n in table.index], columns=columns, fill_value=0)
+    return table.reindex(index=[n for n in names + ["jamming"] if n in table.index], columns=columns, fill_value=0)
+
+
+def stall_confusion(df: pd.DataFrame, method: str) -> pd.DataFrame:
+    """Stall identification against the truth: relevant stall events (identified by ``method``, 'signal' or
+    'model'), jammed runs (eta = 1 of either method on the jammed rod) and the other runs (eta = 1 of
+    ``method`` outside stall loads, before any fault). Columns: taken for a stall or not."""
+    ok = df[df["status"] == 0]
+    jammed = ok["fault_kind"] == "jamming"
+    events, found = int(ok["stall_events"].sum()), int(ok[f"stall_identified_{method}"].sum())
+    rows = {"relevant stall loads (events)": (found, events - found)}
+    if jammed.any():
+        taken = int(ok.loc[jammed, "jam_taken_for_stall"].sum())
+        rows["jammed rods (runs)"] = (taken, int(jammed.sum()) - taken)
+    others = ok.loc[~jammed, f"eta_false_{method}"].to_numpy(dtype=bool)
+    rows["other runs, outside stall loads"] = (int(others.sum()), int((~others).sum()))
+    return pd.DataFrame(rows.values(), index=list(rows), columns=["eta = 1 (stall)", "eta = 0"])
 
 
 def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
@@ -149,7 +178,7 @@ def _interval(k, n, lo, hi):
 
 def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict) -> str:
     """Human-readable campaign report."""
-    overall = summ[summ["group"] == "overall"].iloc[0]
+    overall = summ[summ["stratum"] == "overall"].iloc[0]
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
              f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision {meta.get('git_revision')}.", "",
              "Rates with exact Clopper-Pearson 95 % intervals.", "",
@@ -161,7 +190,7 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
              "| stall events | identified (signal) | identified (model) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in summ.iterrows():
-        label = r["stratum"] if r["group"] == "overall" else f"{r['group']}: {r['stratum']}"
+        label = r["label"] if r["stratum"] == "overall" else f"{r['stratum']}: {r['label']}"
         lines.append(
             f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
             f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
@@ -181,6 +210,14 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
               "| true \\ decided | " + " | ".join(conf.columns) + " |", "|---" * (len(conf.columns) + 1) + "|"]
     for name, row in conf.iterrows():
         lines.append(f"| {name} | " + " | ".join(str(v) for v in row.to_numpy()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def figures_markdown(drawn: dict, left_out: dict) -> str:
+    """Section of summary.md: each figure written (name -> what it shows) and each left out (name -> why)."""
+    lines = ["", "## Figures", ""]
+    lines += [f"- `{name}.png`: {what}" for name, what in drawn.items()]
+    lines += [f"- `{name}.png` left out: {why}." for name, why in left_out.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -253,7 +290,7 @@ def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_
     """
     rows = []
     for label, df in frames.items():
-        overall = summary(df).query("group == 'overall'").iloc[0]
+        overall = summary(df).query("stratum == 'overall'").iloc[0]
         gap = gaps(df, deg_per_m).set_index("detector")
         ok = df["status"] == 0
         fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())

@@ -171,7 +171,7 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
         assert json.loads(meta["config"])["campaign"]["seed"] == 21
         assert meta["seed"] == "21" and meta["version"] and meta["git_revision"]
     summ = pd.read_parquet(out / "summary.parquet")
-    overall = summ[summ["group"] == "overall"].iloc[0]
+    overall = summ[summ["stratum"] == "overall"].iloc[0]
     table = scenario_table(out)
     assert overall["runs"] == len(table) == N_SHORT
     # fault-free runs: a run alarms if its LOE decision or its eta = 1 outside stall loads has a time
@@ -188,8 +188,17 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
     assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
     assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
             "separable", "missed", "jam_taken_for_stall", "jam_taken_for_stall_time_s"} <= set(table.columns)
-    for png in ("rates_by_fault.png", "detection_times.png", "confusion.png", "detectability.png"):
+    for png in ("rates_by_fault.png", "rates_by_envelope.png", "rates_by_manoeuvre.png", "confusion.png"):
         assert (out / png).stat().st_size > 0
+    # no faulty runs: no detection times and no detectability cells to draw; summary.md says so
+    text = (out / "summary.md").read_text()
+    for png in ("detection_times.png", "detectability.png"):
+        assert not (out / png).exists()
+        assert f"- `{png}` left out: no" in text
+    assert (out / "stall_latency.png").exists() == (overall["stall_events"] > 0)
+    assert "(FAR only: no faulty runs, so no MDR panel)" in text
+    assert set(summ["stratum"]) == {"overall", "fault", "envelope", "manoeuvre", "turbulence"}
+    assert "group" not in summ.columns
 
 
 def test_status_codes_carry_their_meaning():

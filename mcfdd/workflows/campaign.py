@@ -23,7 +23,17 @@ CAMPAIGN_STATE = "campaign.json"
 # Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
 # same vectorised code, so results do not depend on the chunk size to the last bit.
 LANE_BLOCK = 64
-PLOTS = ("rates_by_fault", "rates_by_envelope", "rates_by_manoeuvre", "detection_times", "confusion", "detectability")
+PLOTS = {
+    "rates_by_fault": "FAR and MDR per fault class with their 95 % intervals",
+    "rates_by_envelope": "FAR and MDR per speed and altitude cell",
+    "rates_by_manoeuvre": "FAR and MDR per manoeuvre family",
+    "detection_times": "detection latency per fault class (detected runs)",
+    "confusion": "identification confusion (true nearest model against decided model, jammed runs included) and, "
+                 "with stall loads or jams, stall identification against the truth",
+    "detectability": "MDR per dynamic pressure and peak load fraction, separable cells framed",
+    "stall_latency": "cumulative distribution of the worst stall-identification latency per run and method, "
+                     "with the stall window",
+}
 
 
 class OutputFolderError(config.ConfigError):
@@ -165,7 +175,7 @@ class CampaignResult:
             as :class:`mcfdd.Status` codes) and per filter i ``ratio_max_pre_i`` /
             ``ratio_min_post_i`` (theta_i / ||u|| before the fault and in the detection window).
         summary: FAR, MDR, identification and stall rates with Clopper-Pearson 95 % intervals,
-            overall and per stratum (column ``group``).
+            overall and per stratum (columns ``stratum`` and ``label``).
         confusion: true nearest model (rows) against decided model (columns), counts.
         gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector.
         detectability: FAR and MDR per fault class, dynamic-pressure bin and peak-load-fraction
@@ -190,37 +200,65 @@ class CampaignResult:
 
     def overall(self) -> dict:
         """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
-        return self.summary[self.summary["group"] == "overall"].iloc[0].to_dict()
+        return self.summary[self.summary["stratum"] == "overall"].iloc[0].to_dict()
+
+    def left_out(self) -> dict:
+        """Figures of :data:`PLOTS` this campaign has no data for: name -> why."""
+        o, df = self.overall(), self.scenarios
+        why = {}
+        if o["faulty_runs"] == 0:
+            why["detection_times"] = "no run with a parametric fault (leakage, surface damage, disconnection)"
+        elif not (df["detected"] & (df["status"] == 0)).any():
+            why["detection_times"] = f"none of the {o['faulty_runs']} faulty runs was detected"
+        if self.detectability.empty:
+            why["detectability"] = "no parametric faults in this campaign"
+        if o["stall_events"] == 0:
+            why["stall_latency"] = "no relevant stall loads in this campaign"
+        return why
 
     def plot(self, name: str):
         """One of the campaign's figures, a matplotlib Figure.
 
         Args:
-            name: 'rates_by_fault', 'rates_by_envelope', 'rates_by_manoeuvre', 'detection_times',
-                'confusion' or 'detectability'.
+            name: one of :data:`PLOTS` ('rates_by_fault', 'rates_by_envelope', 'rates_by_manoeuvre',
+                'detection_times', 'confusion', 'detectability', 'stall_latency') that
+                :meth:`left_out` does not name.
         """
         from mcfdd import plots, report
 
-        if name.startswith("rates_by_") and name in PLOTS:
-            return plots.rates_by_stratum(self.summary, name[len("rates_by_"):])
+        if name not in PLOTS:
+            raise ValueError(f"plot: {name!r} is not one of {', '.join(PLOTS)}")
+        if name in self.left_out():
+            raise ValueError(f"plot: {name!r} is not drawn for this campaign: {self.left_out()[name]}")
+        if name.startswith("rates_by_"):
+            rates = ("far", "mdr") if self.overall()["faulty_runs"] > 0 else ("far",)
+            return plots.rates_by_stratum(self.summary, name[len("rates_by_"):], rates)
         if name == "detection_times":
             return plots.detection_times(self.scenarios, report.fault_class(self.scenarios))
         if name == "confusion":
-            return plots.confusion_matrix(self.confusion)
+            o = self.overall()
+            stall = (report.stall_confusion(self.scenarios, self.config.fdd.stall.identification)
+                     if o["stall_events"] > 0 or o["jammed_runs"] > 0 else None)
+            return plots.confusion_matrix(self.confusion, stall)
         if name == "detectability":
             return plots.detectability(self.detectability)
-        raise ValueError(f"plot: {name!r} is not one of {', '.join(PLOTS)}")
+        return plots.stall_latency(self.scenarios, self.config.evaluation.stall_window_s)
 
     def save(self, out, title: str = "Campaign") -> list[Path]:
         """Write the files of ``mcfdd campaign`` into folder ``out``; returns their paths.
 
         ``campaign.json`` (resolved config), ``scenarios/part-*.parquet`` (one part per chunk),
         ``summary.parquet``, ``confusion.parquet``, ``gaps.parquet``, ``detectability.parquet``, ``summary.md`` (headed
-        ``title``) and a PNG per :attr:`PLOTS` name.
+        ``title``, ending with the figures written and those :meth:`left_out`, with the reason) and a PNG per
+        :data:`PLOTS` name not left out.
         """
         from mcfdd import report
 
         out = Path(out)
+        left_out = self.left_out()
+        no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
+        drawn = {name: what + (no_mdr if name.startswith("rates_by_") else "") for name, what in PLOTS.items()
+                 if name not in left_out}
         written = [io.write_text(out / CAMPAIGN_STATE, _state_text(self.config))]
         ids = self.scenarios["scenario_id"].to_numpy()
         for part in np.unique(self._parts):
@@ -234,8 +272,9 @@ class CampaignResult:
         written.append(io.write_text(out / "summary.md", report.markdown(title, self.summary, self.confusion,
                                                                          self.gaps, self.meta)
                                      + report.detectability_markdown(self.detectability, self.scenarios)
-                                     + report.stall_scoring_markdown(self.scenarios)))
-        written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in PLOTS)
+                                     + report.stall_scoring_markdown(self.scenarios)
+                                     + report.figures_markdown(drawn, left_out)))
+        written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
 
 

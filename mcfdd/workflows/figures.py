@@ -103,7 +103,7 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
 
     df5, _ = run_histories(fig5_cfg.simulation, fig5_cfg.plant, fig5_cfg.fdd, fig5_cfg.runs, progress)
     run5 = df5[df5["run"] == fig5_cfg.runs[0].name]
-    figures["fig5"] = plots.fig5(run5)
+    figures["fig5"] = plots.fig5(run5, fig5_cfg.fdd.stall.tau_deg)
     figures["fig6"] = plots.fig6(run5, fig5_cfg.plant.actuator.max_deflection_deg)
     events, outside = stall_latencies(run5, fig5_cfg.simulation.dt_s)
     return FiguresResult(figures, sweep, grid, events, outside, meta)
