@@ -336,7 +336,8 @@ def fig6(run: pd.DataFrame, max_deflection_deg: float) -> Figure:
     ax2.step(t, run["eta_model"].astype(float) * 0.9, where="post", label="eta, model detection (30) (x0.9)")
     ax2.set_ylabel("eta")
     ax2.set_xlabel("time (s)")
-    ax2.legend(loc="upper right")
+    ax2.set_ylim(-0.05, 1.45)
+    ax2.legend(loc="upper center", ncols=2, fontsize=8)
     for ax in (ax1, ax2):
         _shade(ax, t, run["stall"], color="red", alpha=0.12)
         ax.grid(alpha=0.3)
