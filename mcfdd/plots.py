@@ -6,8 +6,9 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
+from matplotlib.ticker import FuncFormatter
 
-from mcfdd.report import bin_lower_edge
+from mcfdd.report import LOAD_FRACTION_BINS, QBAR_BINS_KPA, bin_lower_edge
 
 
 def _shade(ax, t, mask, **kw):
@@ -93,8 +94,9 @@ def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far", "mdr")) -> 
         log = shown.size > 0 and shown.min() < 0.1
         left = 10.0 ** np.floor(np.log10(shown.min() / 2.0)) if log else 0.0
         some, zero = (n > 0) & (k > 0), (n > 0) & (k == 0)
-        ax.errorbar(value[some], y[some], xerr=[value[some] - lo[some], hi[some] - value[some]], fmt="o", capsize=3,
-                    color="C0", label="rate, 95 % interval")
+        if some.any():
+            ax.errorbar(value[some], y[some], xerr=[value[some] - lo[some], hi[some] - value[some]], fmt="o",
+                        capsize=3, color="C0", label="rate, 95 % interval")
         if zero.any():
             ax.hlines(y[zero], left, hi[zero], color="C1", lw=2.0)
             ax.plot(hi[zero], y[zero], "|", color="C1", ms=10, mew=2.0, label="0 counted: up to the upper bound")
@@ -391,14 +393,19 @@ def tuning_history(history: pd.DataFrame, units: str) -> Figure:
     ax2.plot(it, history["tau_f"], label="tau_f (26)")
     ax2.plot(it, history["tau_d"], label="tau_d (27)")
     ax2.set_ylabel(f"bound ({units})")
-    ax2.set_yscale("log")
     ax2.legend(fontsize=8)
     for name in ("alpha", "beta", "gamma_1_s", "pole_1_s"):
         ax3.plot(it, history[name], label=name)
-    ax3.set_yscale("log")
     ax3.set_ylabel("parameter")
     ax3.set_xlabel("iteration")
-    ax3.legend(fontsize=8, ncol=4)
+    ax3.legend(fontsize=8, ncol=4, loc="upper left", bbox_to_anchor=(0.0, -0.25))
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    for ax in (ax2, ax3):
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(plain)
+        low, high = ax.get_ylim()
+        if high < 10.0 * low:  # within a decade the minor ticks carry the labels: plain numbers, not 2 x 10^0
+            ax.yaxis.set_minor_formatter(plain)
     for ax in (ax1, ax2, ax3):
         ax.grid(alpha=0.3)
     return fig
@@ -428,10 +435,10 @@ def detectability(det: pd.DataFrame) -> Figure:
             if r["separable"]:
                 ax.add_patch(_cell_frame(j, i))
         image = ax.imshow(grid, cmap="Reds", vmin=0.0, vmax=1.0, origin="lower", aspect="auto")
-        ax.set_xticks(range(len(qbar_bins)), qbar_bins, rotation=30, ha="right", fontsize=8)
+        ax.set_xticks(range(len(qbar_bins)), [_bin_text(b, QBAR_BINS_KPA) for b in qbar_bins], fontsize=8)
         ax.set_title(f"{kind}: MDR (framed: separable)", fontsize=10)
         ax.set_xlabel("dynamic pressure (kPa)")
-    axes[0].set_yticks(range(len(load_bins)), load_bins, fontsize=8)
+    axes[0].set_yticks(range(len(load_bins)), [_bin_text(b, LOAD_FRACTION_BINS) for b in load_bins], fontsize=8)
     axes[0].set_ylabel("peak load fraction |F| / (nu1 dP S)")
     if image is not None:
         fig.colorbar(image, ax=list(axes), label="missed-detection rate", shrink=0.8)
@@ -440,6 +447,14 @@ def detectability(det: pd.DataFrame) -> Figure:
                      transform=axes[0].transAxes)
         axes[0].set_axis_off()
     return fig
+
+
+def _bin_text(label: str, edges) -> str:
+    """``[a, b)`` as ``a-b``, the last bin of ``edges`` as ``>= a``; other labels (no motion) as they are."""
+    if not label.startswith("["):
+        return label
+    lo, hi = (float(v) for v in label[1:-1].split(","))
+    return f">= {lo:g}" if hi == edges[-1] else f"{lo:g}-{hi:g}"
 
 
 def _cell_frame(j, i):

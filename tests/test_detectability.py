@@ -91,6 +91,8 @@ def test_detectability_figure_has_a_panel_per_fault_kind():
     panels = [ax for ax in fig.axes if ax.get_title()]
     assert [ax.get_title().split(":")[0] for ax in panels] == ["leakage", "disconnection"]
     assert sum(1 for p in panels[1].patches if p.get_edgecolor()[2] > 0.5) == 1  # one separable cell framed
+    assert [t.get_text() for t in panels[0].get_xticklabels()] == ["0-5", "10-15"]
+    assert [t.get_text() for t in panels[0].get_yticklabels()] == ["0-0.1", "0.4-0.6"]
 
 
 def test_stall_scoring_counts_jams_taken_for_stalls():
