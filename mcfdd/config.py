@@ -694,12 +694,12 @@ class CampaignConfig(Section):
             if axis is None or axis.kind == "const":
                 raise Invalid(f"campaign.grid[{i}]", f"{name!r} is not a varying axis of [space]")
         if not any(a.kind != "const" for a in self.space.axes):
-            raise Invalid("space", "nothing varies (no range or list); the scenarios would all fly one flight point "
-                                   "with one plant, give at least one axis a range [lo, hi] or a list")
+            raise Invalid("space", "nothing varies (no range or list): every scenario would fly one flight point "
+                                   "with one plant; give at least one axis a range [lo, hi] or a list")
         names, cells = self.grid_cells()
         if self.campaign.scenarios % cells:
             raise Invalid("campaign.scenarios", f"{self.campaign.scenarios} is not a multiple of the {cells} grid "
-                                                f"cells of {', '.join(names)}; each cell gets scenarios / {cells} "
+                                                f"cells of {' x '.join(names)}; each cell gets scenarios / {cells} "
                                                 f"samples")
         self._check_times()
         vcas = self.space.axis("vcas_kt") or Axis("vcas_kt", "const", (_default("vcas_kt"),))
