@@ -71,14 +71,14 @@ SPACE = {
     "manoeuvre_kind": ["doublet", "bank_to_bank", "roll_protection", "sideslip"], "amplitude": [0.3, 1.0],
     "t_start_s": [5.0, 25.0], "duration_s": [1.0, 3.0], "hold_s": [1.0, 4.0], "sideslip_deg": [-6.0, 6.0],
 }
-GRID_CELLS = len(SPACE["fault_kind"])  # fault_kind is gridded: scenarios = samples x 4
+GRID_CELLS = len(SPACE["fault_kind"])  # fault_kind is gridded: scenarios / 4 samples per fault kind
 
 
 def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
         raise SystemExit(f"scenario counts must be multiples of {GRID_CELLS} (fault kinds on a grid)")
     return mcfdd.load_config({
-        "campaign": {"scenarios": n_scenarios // GRID_CELLS, "design": "lhs", "grid": ["fault_kind"], "seed": 1,
+        "campaign": {"scenarios": n_scenarios, "design": "lhs", "grid": ["fault_kind"], "seed": 1,
                      "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
         "space": SPACE,
     }, "campaign")

@@ -10,7 +10,7 @@ import os
 
 import mcfdd
 
-SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 512))  # per manoeuvre family
+SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 1024))  # in all, 512 per manoeuvre family
 DURATION_S = float(os.environ.get("MCFDD_EXAMPLE_DURATION_S", 40.0))
 
 space = {

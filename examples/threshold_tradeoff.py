@@ -20,7 +20,7 @@ import numpy as np
 
 import mcfdd
 
-SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 256))  # per fault kind
+SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 1024))  # in all, 256 per fault kind
 DURATION_S = float(os.environ.get("MCFDD_EXAMPLE_DURATION_S", 60.0))
 OUT = Path(os.environ.get("MCFDD_EXAMPLE_OUT", "results/examples"))
 CONFIG = Path(__file__).resolve().parent.parent / "configs" / "loe_campaign.toml"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import mcfdd
 
-SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 64))  # per fault kind
+SCENARIOS = int(os.environ.get("MCFDD_EXAMPLE_SCENARIOS", 256))  # in all, 64 per fault kind
 DURATION_S = float(os.environ.get("MCFDD_EXAMPLE_DURATION_S", 30.0))
 ITERATIONS = int(os.environ.get("MCFDD_EXAMPLE_ITERATIONS", 60))
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"

@@ -10,7 +10,7 @@ import tomllib
 from pathlib import Path
 
 import mcfdd
-from mcfdd import config, io
+from mcfdd import config, io, report
 
 
 def _say(message: str):
@@ -22,12 +22,31 @@ def _written(paths):
         _say(f"wrote {path}")
 
 
+def _num(value, spec: str = ".3g", unit: str = "") -> str:
+    """``value`` formatted, or n/a where it does not exist (nan, None)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return report.NA
+    return f"{value:{spec}}{unit}"
+
+
+def _rate(r: dict, key: str) -> str:
+    """'rate [lo, hi]' of a summary row, or n/a when no run counts."""
+    if math.isnan(r[key]):
+        return report.NA
+    return f"{r[key]:.4g} [{r[f'{key}_lo']:.3g}, {r[f'{key}_hi']:.3g}]"
+
+
+def _decisions(first: dict) -> str:
+    """First decision time of each fault model, e.g. 'pressure-loss-27 at 21.74 s'."""
+    return ", ".join(f"{model} at {t:.2f} s" for model, t in first.items()) or "none"
+
+
 def cmd_simulate(args) -> int:
     result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
     _written(result.save(Path(args.out) if args.out else io.default_out_dir("simulate", args.config)))
     for _, r in result.summary().iterrows():
         print(f"{r['run']}: max |delta| {r['max_abs_delta_deg']:.2f} deg, stall {r['stall_s']:.2f} s, "
-              f"eta_stall {r['eta_stall_s']:.2f} s, first decisions {r['first_decisions_s'] or 'none'}")
+              f"eta_stall {r['eta_stall_s']:.2f} s, first decisions {_decisions(r['first_decisions_s'])}")
     return 0
 
 
@@ -45,16 +64,26 @@ def _settings(pairs) -> dict:
     return overrides
 
 
+CAMPAIGN_FLAGS = ("scenarios", "seed", "chunk_size")  # flags that set the campaign.* key of their name
+
+
+def _campaign_flags(args) -> dict:
+    """Overrides of the campaign flags given, each checked against the range of its key."""
+    overrides = {}
+    for key in CAMPAIGN_FLAGS:
+        value = getattr(args, key, None)
+        if value is not None:
+            try:
+                overrides[f"campaign.{key}"] = config.field_value(config.CampaignSettings, key, value)
+            except config.Invalid as err:
+                raise config.ConfigError(f"--{key.replace('_', '-')}: {err.message} (campaign.{key})") from None
+    return overrides
+
+
 def _campaign_config(args) -> config.CampaignConfig:
     """The campaign config with the flags' overrides and ``--fdd`` fragment; bad flags are named."""
     overrides = _settings(getattr(args, "set", None))
-    for flag, low in (("scenarios", 1), ("seed", 0), ("chunk_size", 1)):
-        value = getattr(args, flag)
-        if value is not None:
-            if value < low:
-                raise config.ConfigError(f"--{flag.replace('_', '-')}: {value} is not allowed; expected "
-                                         f"{'a non-negative' if low == 0 else 'a positive'} integer")
-            overrides[f"campaign.{flag}"] = value
+    overrides.update(_campaign_flags(args))
     if getattr(args, "fdd", None):
         overrides["fdd"] = config.to_dict(config.load_fdd_fragment(args.fdd))
     return mcfdd.load_config(args.config, "campaign", overrides)
@@ -74,9 +103,8 @@ def cmd_campaign(args) -> int:
         _say(f"\ninterrupted: finished chunks are kept in {out / 'scenarios'}; continue with --resume")
         return 130
     overall = result.overall()
-    print(f"{overall['runs']} scenarios: FAR {overall['far']:.4g} [{overall['far_lo']:.3g}, {overall['far_hi']:.3g}], "
-          f"MDR {overall['mdr']:.4g} [{overall['mdr_lo']:.3g}, {overall['mdr_hi']:.3g}], "
-          f"stall events {overall['stall_events']}")
+    stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
+    print(f"{overall['runs']} scenarios: FAR {_rate(overall, 'far')}, MDR {_rate(overall, 'mdr')}{stalls}")
     print(f"summary: {out / 'summary.md'}")
     return 0
 
@@ -104,7 +132,8 @@ def cmd_worst_case(args) -> int:
     out = Path(args.out) if args.out else io.default_out_dir("worst-case", args.config)
     result.save(out, f"Worst case {Path(args.config).stem}")
     for _, r in result.summary.iterrows():
-        print(f"{r['method']}: {r['simulations']} simulations, {r['run_time_s']:.1f} s, worst {r[result.value]:.5g}")
+        print(f"{r['method']}: {r['simulations']} simulations, {r['run_time_s']:.1f} s, worst "
+              f"{_num(r[result.value], '.5g')}")
     print(f"report: {out / 'report.md'}")
     return 0
 
@@ -117,7 +146,7 @@ def cmd_tune(args) -> int:
     result.save(out)
     for _, r in result.validation.iterrows():
         print(f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
-              f"{r['missed']}/{r['faulty_runs']}, detection time median {r['detection_time_median_s']:.3g} s, stall "
+              f"{r['missed']}/{r['faulty_runs']}, detection time median {_num(r['detection_time_median_s'], unit=' s')}, stall "
               f"detector above tau outside stalls in {r['stall_detector_fires']} runs")
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
     return 0
@@ -132,7 +161,7 @@ def cmd_figures(args) -> int:
         for v in result.grid[fam]:
             row = rows.iloc[(rows["fault_size"] - v).abs().argmin()]
             print(f"fig4 {fam} {100 * row['fault_size']:.0f} %: decided {row['detected_model_name']}, "
-                  f"first fault model after {row['detection_time_s']:.2f} s, {row['switches']} switch(es)")
+                  f"first fault model after {_num(row['detection_time_s'], '.2f', ' s')}, {row['switches']} switch(es)")
     for _, e in result.stall_events.iterrows():
         parts = [f"{m} none" if math.isnan(e[f"latency_{m}_s"]) else f"{m} {e[f'latency_{m}_s']:.2f} s"
                  for m in ("signal", "model")]
@@ -166,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
              "fig5.toml", "results/simulate-<config>")
     p = _command(sub, "campaign", cmd_campaign, "Monte-Carlo campaign over a scenario space: FAR, MDR, detection "
                  "times", "loe_campaign.toml", "a new results/campaign-<config>[-N]")
-    p.add_argument("--scenarios", type=int, help="override campaign.scenarios")
+    p.add_argument("--scenarios", type=int, help="total number of scenarios, split evenly over the grid cells "
+                   "(overrides campaign.scenarios; a multiple of the number of cells)")
     p.add_argument("--seed", type=int, help="override campaign.seed")
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
@@ -188,12 +218,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_out_flag(args):
+    """``--out`` must name a folder (or nothing yet): refused before any work."""
+    out = getattr(args, "out", None)
+    if out and Path(out).exists() and not Path(out).is_dir():
+        raise config.ConfigError(f"--out: {out} exists and is not a folder; choose a folder")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        _check_out_flag(args)
         return args.func(args)
     except config.ConfigError as err:
         print(f"mcfdd: configuration error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)
         return 2
 
 

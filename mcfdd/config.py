@@ -43,6 +43,7 @@ PRECISIONS = ("float32", "float64")
 TURBULENCE_LEVELS = tuple(turbulence.LEVELS)
 VCAS_RANGE_KT = (80.0, 420.0)
 ALTITUDE_RANGE_M = (0.0, 12500.0)
+SEED_MAX = 2**32 - 1  # seeds are 32-bit: JAX keys, numpy and scipy.stats.qmc take them alike
 
 
 class ConfigError(ValueError):
@@ -429,7 +430,7 @@ class SimulationConfig(Section):
     duration_s: float = spec(30.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
     substeps: int = spec(2, lo=1, hi=64, doc="actuator sub-steps per sample in the linear range of the valve")
-    seed: int = spec(0, lo=0)
+    seed: int = spec(0, lo=0, hi=SEED_MAX)
     precision: Literal[PRECISIONS] = spec("float32")
 
     @property
@@ -518,15 +519,18 @@ class Axis:
         return [self.lo, self.hi] if self.n == 2 else {"range": [self.lo, self.hi], "n": self.n}
 
 
+# Each scenario-table column and the single-run key (section, key) it takes its type, range and default from.
+_COLUMN_OWNERS = {**{n: (RunConfig, n) for n in RunConfig.model_fields if n not in ("name", "fault", "manoeuvre")},
+                  "fault_kind": (FaultConfig, "kind"), "fault_onset_s": (FaultConfig, "onset_s"),
+                  "leakage_size": (FaultConfig, "size"), "surface_damage_size": (FaultConfig, "size"),
+                  "manoeuvre_kind": (ManoeuvreConfig, "kind"),
+                  **{n: (ManoeuvreConfig, n) for n in ManoeuvreConfig.model_fields if n != "kind"}}
+
+
 def _column_types() -> dict:
     """Each scenario-table column with the type and range of its single-run key."""
-    owners = {**{n: (RunConfig, n) for n in RunConfig.model_fields if n not in ("name", "fault", "manoeuvre")},
-              "fault_kind": (FaultConfig, "kind"), "fault_onset_s": (FaultConfig, "onset_s"),
-              "leakage_size": (FaultConfig, "size"), "surface_damage_size": (FaultConfig, "size"),
-              "manoeuvre_kind": (ManoeuvreConfig, "kind"),
-              **{n: (ManoeuvreConfig, n) for n in ManoeuvreConfig.model_fields if n != "kind"}}
     types = {}
-    for column, (owner, key) in owners.items():
+    for column, (owner, key) in _COLUMN_OWNERS.items():
         field = owner.model_fields[key]
         meta = [annotated_types.Ge(0.0), annotated_types.Le(0.95)] if column == "leakage_size" else field.metadata
         types[column] = Annotated[(field.annotation, *meta)] if meta else field.annotation
@@ -538,12 +542,28 @@ _COLUMN_ADAPTERS = {name: TypeAdapter(tp, config=ConfigDict(strict=True)) for na
 SIZE_COLUMNS = {"leakage_size": "leakage", "surface_damage_size": "surface_damage"}
 
 
-def _column_value(name, value, key):
+def _adapted(tp, value, key, adapter=None):
+    """``value`` validated as type ``tp`` (strict); an error is an :class:`Invalid` at ``key``."""
     try:
-        return _COLUMN_ADAPTERS[name].validate_python(value)
+        return (adapter or TypeAdapter(tp, config=ConfigDict(strict=True))).validate_python(value)
     except ValidationError as err:
-        sub, message = _describe(_COLUMN_TYPES[name], _first(err.errors()))
+        sub, message = _describe(tp, _first(err.errors()))
         raise Invalid(_join(key, sub), message) from None
+
+
+def _column_value(name, value, key):
+    return _adapted(_COLUMN_TYPES[name], value, key, _COLUMN_ADAPTERS[name])
+
+
+def field_value(cls, key: str, value):
+    """``value`` checked as key ``key`` of section ``cls`` (its type and range), e.g. for a command-line flag.
+
+    >>> field_value(CampaignSettings, "seed", 2**40)
+    Traceback (most recent call last):
+    mcfdd.config.Invalid: seed: 1099511627776 is outside the allowed range [0, 4294967295]
+    """
+    field = cls.model_fields[key]
+    return _adapted(Annotated[(field.annotation, *field.metadata)] if field.metadata else field.annotation, value, key)
 
 
 def _axis(name, value, key) -> Axis:
@@ -628,10 +648,11 @@ class SpaceConfig(Section):
 
 
 class CampaignSettings(Section):
-    scenarios: int = spec(1000, lo=1, hi=10_000_000, doc="samples (times the grid cells when axes are gridded)")
+    scenarios: int = spec(1000, lo=1, hi=10_000_000, doc="total number of scenarios, split evenly over the grid "
+                          "cells (a multiple of their number)")
     design: Literal[DESIGNS] = spec("sobol")
     grid: tuple[str, ...] = spec((), doc="axes on a full grid, crossed with samples over the others")
-    seed: int = spec(0, lo=0)
+    seed: int = spec(0, lo=0, hi=SEED_MAX)
     chunk_size: int = spec(1024, lo=1, hi=1_000_000)
     duration_s: float = spec(60.0, lo=0.0, lo_open=True, hi=3600.0)
     dt_s: float = spec(0.01, lo=1e-4, hi=0.1)
@@ -656,8 +677,8 @@ class EvaluationConfig(Section):
 
 def _default(column):
     """Default value of a scenario column: its single-run key's default."""
-    owner = FaultConfig if column == "fault_kind" else RunConfig
-    return owner.model_fields["kind" if column == "fault_kind" else column].default
+    owner, key = _COLUMN_OWNERS[column]
+    return owner.model_fields[key].default
 
 
 class CampaignConfig(Section):
@@ -674,12 +695,48 @@ class CampaignConfig(Section):
             axis = self.space.axis(name)
             if axis is None or axis.kind == "const":
                 raise Invalid(f"campaign.grid[{i}]", f"{name!r} is not a varying axis of [space]")
+        if not any(a.kind != "const" for a in self.space.axes):
+            raise Invalid("space", "nothing varies (no range or list): every scenario would fly one flight point "
+                                   "with one plant; give at least one axis a range [lo, hi] or a list")
+        names, cells = self.grid_cells()
+        if self.campaign.scenarios % cells:
+            raise Invalid("campaign.scenarios", f"{self.campaign.scenarios} is not a multiple of the {cells} grid "
+                                                f"cells of {' x '.join(names)}; each cell gets scenarios / {cells} "
+                                                f"samples")
+        self._check_times()
         vcas = self.space.axis("vcas_kt") or Axis("vcas_kt", "const", (_default("vcas_kt"),))
         alt = self.space.axis("altitude_m") or Axis("altitude_m", "const", (_default("altitude_m"),))
         self.plant.check_flight_point(min(vcas.grid_values()), max(alt.grid_values()),
                                       "space: the lowest vcas_kt at the highest altitude_m")
         kinds = self.space.axis("manoeuvre_kind")
         self.plant.check_manoeuvres(kinds.grid_values() if kinds else (), "space.manoeuvre_kind")
+
+    def grid_cells(self) -> tuple[tuple[str, ...], int]:
+        """Names of the gridded axes (every varying one with design 'grid') and the number of grid cells."""
+        grid = self.campaign.design == "grid"
+        axes = [a for a in self.space.axes if a.kind != "const" and (grid or a.name in self.campaign.grid)]
+        return tuple(a.name for a in axes), math.prod(len(a.grid_values()) for a in axes)
+
+    def _column_max(self, name: str) -> float:
+        axis = self.space.axis(name) or Axis(name, "const", (_default(name),))
+        return axis.hi if axis.kind == "range" else max(axis.values)
+
+    def _check_times(self):
+        """Settling, fault onsets and manoeuvre starts must all lie within the runs."""
+        end = self.campaign.duration_s
+        if self.evaluation.settle_s >= end:
+            raise Invalid("evaluation.settle_s", f"{self.evaluation.settle_s} s is not below the runs' duration "
+                                                 f"({end} s); no decision would be scored")
+        windows = (("fault_kind", ("none",), "fault_onset_s", "fault onsets"),
+                   ("manoeuvre_kind", ("quiet", "level_flight"), "t_start_s", "manoeuvres"))
+        for kind, idle, column, what in windows:
+            axis = self.space.axis(kind)
+            if set(axis.grid_values() if axis else (_default(kind),)) <= set(idle):
+                continue
+            latest = self._column_max(column)
+            if latest >= end:
+                raise Invalid(f"space.{column}", f"{what} up to {latest} s start at or after the end of the runs "
+                                                 f"({end} s)")
 
 
 # --------------------------------------------------------------------------------------------
@@ -745,7 +802,7 @@ _OPEN_LOOP_KINDS = tuple(k for k in manoeuvres.KINDS if k.startswith("ol_"))
 class LpvFitConfig(Section):
     """``mcfdd fit-lpv``: LPV gain models fitted by output error to the nonlinear actuator."""
 
-    seed: int = spec(0, lo=0, doc="draws the validation flight points")
+    seed: int = spec(0, lo=0, hi=SEED_MAX, doc="draws the validation flight points")
     precision: Literal[PRECISIONS] = spec("float64")
     exact_disconnection: bool = spec(False, doc="models with nu2 = 0 take the exact gain of eq. (36), unfitted")
     plant: PlantConfig = spec(PlantConfig())
@@ -846,8 +903,8 @@ class WorstCaseConfig(Section):
             raise Invalid("space.fault_kind", f"{list(kinds)}; the LOE detection bound needs parametric faults, "
                                               f"one of {', '.join(PARAMETRIC)}")
         _check_as_campaign(CampaignConfig.model_construct(
-            campaign=CampaignSettings(), evaluation=self.evaluation, plant=self.plant, fdd=self.fdd,
-            space=self.space), "search")
+            campaign=CampaignSettings(duration_s=self.simulation.duration_s), evaluation=self.evaluation,
+            plant=self.plant, fdd=self.fdd, space=self.space), "search")
 
 
 class TuneSettings(Section):
@@ -1020,7 +1077,8 @@ def load_config(source, kind: str | None = None, overrides: dict | None = None):
     Returns:
         The frozen config model of the kind.
 
-    >>> cfg = load_config({"campaign": {"scenarios": 8}}, overrides={"fdd.loe.tau": 0.12})
+    >>> space = {"kci_scale": [0.9, 1.1]}
+    >>> cfg = load_config({"campaign": {"scenarios": 8}, "space": space}, overrides={"fdd.loe.tau": 0.12})
     >>> type(cfg).__name__, cfg.campaign.scenarios, cfg.fdd.loe.tau
     ('CampaignConfig', 8, 0.12)
     """
@@ -1040,10 +1098,22 @@ def load_config(source, kind: str | None = None, overrides: dict | None = None):
         raise ConfigError(f"{source}: {err}") from None
 
 
+def differences(old, new, path: str = "") -> list[tuple[str, object, object]]:
+    """(key path, old value, new value) wherever two resolved configurations (plain data) differ.
+
+    >>> differences({"campaign": {"seed": 1, "grid": ["a"]}}, {"campaign": {"seed": 2, "grid": ["a"]}})
+    [('campaign.seed', 1, 2)]
+    """
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [d for key in sorted(set(old) | set(new), key=str)
+                for d in differences(old.get(key), new.get(key), _join(path, str(key)))]
+    return [] if old == new else [(path or "configuration", old, new)]
+
+
 def replace(cfg, changes: dict):
     """A copy of ``cfg`` with the dotted key paths of ``changes`` set, validated like a file.
 
-    >>> cfg = load_config({"campaign": {"scenarios": 8}})
+    >>> cfg = load_config({"campaign": {"scenarios": 8}, "space": {"kci_scale": [0.9, 1.1]}})
     >>> replace(cfg, {"campaign.seed": 3, "fdd.loe.tau": 0.2}).campaign.seed
     3
     """

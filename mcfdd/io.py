@@ -8,12 +8,14 @@ from importlib import metadata as importlib_metadata
 from importlib import resources
 from pathlib import Path
 
+import filelock
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 META_PREFIX = "mcfdd."
+LOCK_NAME = ".mcfdd.lock"  # in an output folder: held (an OS lock) by the one run writing there
 
 
 def package_version() -> str:
@@ -52,9 +54,17 @@ def write_table(df: pd.DataFrame, path, meta: dict[str, str]) -> Path:
     merged = dict(table.schema.metadata or {})
     merged.update({(META_PREFIX + k).encode(): str(v).encode() for k, v in meta.items()})
     tmp = path.with_name(path.name + ".tmp")
-    pq.write_table(table.replace_schema_metadata(merged), tmp)
+    pq.write_table(table.replace_schema_metadata(merged), tmp, write_page_checksum=True)
     tmp.replace(path)
     return path
+
+
+def read_checked_table(path) -> pd.DataFrame:
+    """A Parquet table read in full, its page checksums verified; a damaged or unreadable file raises ``ValueError``."""
+    try:
+        return pq.read_table(path, page_checksum_verification=True).to_pandas()
+    except (pa.ArrowException, OSError, ValueError) as err:
+        raise ValueError(str(err)) from None
 
 
 def read_metadata(path) -> dict[str, str]:
@@ -75,6 +85,28 @@ def unused_out_dir(command: str, config_path) -> Path:
         i += 1
         candidate = base.with_name(f"{base.name}-{i}")
     return candidate
+
+
+def lock_folder(folder):
+    """An exclusive lock on ``folder`` (made if missing), or None while another process holds it.
+
+    The lock is an OS lock on the folder's :data:`LOCK_NAME` file (``filelock``), so the kernel
+    releases it when its holder dies, even by SIGKILL; call ``.release()`` when done.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = filelock.FileLock(folder / LOCK_NAME)
+    try:
+        lock.acquire(timeout=0)
+    except filelock.Timeout:
+        return None
+    return lock
+
+
+def folder_entries(folder) -> list[Path]:
+    """What ``folder`` holds besides its lock file (nothing if it does not exist)."""
+    folder = Path(folder)
+    return [p for p in folder.iterdir() if p.name != LOCK_NAME] if folder.is_dir() else []
 
 
 def write_text(path, text: str) -> Path:

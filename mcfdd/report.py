@@ -164,43 +164,58 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+NA = "n/a"  # printed where a value does not exist (a rate of no runs, the time of no detection)
+
+
 def _fmt(v, digits=3):
     if isinstance(v, float):
-        return "nan" if math.isnan(v) else f"{v:.{digits}g}"
+        return NA if math.isnan(v) else f"{v:.{digits}g}"
     return str(v)
+
+
+def _times(*values) -> str:
+    """'a / b / c' of durations in s, or n/a when there are none."""
+    return NA if all(math.isnan(v) for v in values) else " / ".join(_fmt(v) for v in values)
+
+
+def _stall_cell(identified: int, events: int, worst_s: float) -> str:
+    return NA if events == 0 else f"{identified} (worst {_fmt(worst_s)} s)"
 
 
 def _interval(k, n, lo, hi):
     if n == 0:
-        return "n/a"
+        return NA
     return f"{k}/{n} = {k / n:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
 def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict) -> str:
     """Human-readable campaign report."""
     overall = summ[summ["stratum"] == "overall"].iloc[0]
+    stalls = overall["stall_events"] > 0
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
              f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision {meta.get('git_revision')}.", "",
-             "Rates with exact Clopper-Pearson 95 % intervals.", "",
+             "Rates with exact Clopper-Pearson 95 % intervals; n/a where there is nothing to count.", "",
              "Detection (an LOE fault is present: the fault-free model rejected) gives FAR, MDR and detection "
              "time; identification (the decoded signature, eq. 15) gives the identified runs, their accuracy "
-             "and time, and the confusion matrix.", "",
+             "and time, and the confusion matrix."
+             + ("" if stalls else " No stall load occurred in any run, so the table has no stall columns."), "",
              "| stratum | runs | FAR (any) | LOE FAR | faulty | MDR | detection time median / p95 / max (s) "
              "| identified: correct / runs | identification time median / max (s) "
-             "| stall events | identified (signal) | identified (model) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             + ("| stall events | identified (signal) | identified (model) |" if stalls else "|"),
+             "|---" * (12 if stalls else 9) + "|"]
     for _, r in summ.iterrows():
         label = r["label"] if r["stratum"] == "overall" else f"{r['stratum']}: {r['label']}"
+        stall_cells = (f" {r['stall_events']} "
+                       f"| {_stall_cell(r['stall_identified_signal'], r['stall_events'], r['stall_worst_latency_signal_s'])} "
+                       f"| {_stall_cell(r['stall_identified_model'], r['stall_events'], r['stall_worst_latency_model_s'])} |"
+                       if stalls else "")
         lines.append(
             f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
             f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
             f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
-            f"| {_fmt(r['detection_time_median_s'])} / {_fmt(r['detection_time_p95_s'])} / "
-            f"{_fmt(r['detection_time_max_s'])} "
+            f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} "
             f"| {_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
-            f"| {_fmt(r['identification_time_median_s'])} / {_fmt(r['identification_time_max_s'])} | {r['stall_events']} "
-            f"| {r['stall_identified_signal']} (worst {_fmt(r['stall_worst_latency_signal_s'])} s) "
-            f"| {r['stall_identified_model']} (worst {_fmt(r['stall_worst_latency_model_s'])} s) |")
+            f"| {_times(r['identification_time_median_s'], r['identification_time_max_s'])} |" + stall_cells)
     lines += ["", "## Detection bounds (eqs. 26-27)", "",
               "| detector | tau_f | at scenario | tau_d | at scenario | gap tau_d - tau_f | units |", "|---|---|---|---|---|---|---|"]
     for _, r in gap.iterrows():
@@ -275,7 +290,7 @@ def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value:
             values = g[value].to_numpy()
             finite = values[np.isfinite(values)]
             lines.append(f"| {start} | {_fmt(values[0], 5)} | {_fmt(values[-1], 5)} | "
-                         f"{_fmt(worst(finite), 5) if finite.size else 'nan'} |")
+                         f"{_fmt(worst(finite), 5) if finite.size else NA} |")
     return "\n".join(lines) + "\n"
 
 
@@ -342,8 +357,8 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
         ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
         ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
         ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
-        ("detection time median / p95 / max (s)", lambda r: f"{_fmt(r['detection_time_median_s'])} / "
-         f"{_fmt(r['detection_time_p95_s'])} / {_fmt(r['detection_time_max_s'])}"),
+        ("detection time median / p95 / max (s)", lambda r: _times(r["detection_time_median_s"],
+                                                                   r["detection_time_p95_s"], r["detection_time_max_s"])),
         ("stall detector above tau outside stall loads (runs)", lambda r: str(r["stall_detector_fires"])),
         ("eta = 1 outside stall loads (runs, signal)", lambda r: str(r["eta_false_alarms_signal"])),
         ("stall events identified, signal (worst latency s)", lambda r: f"{r['stall_identified_signal']} / "
@@ -458,9 +473,9 @@ def stall_scoring_markdown(df: pd.DataFrame) -> str:
         jam = metrics.rate(int(taken.sum()), len(jammed))
         after = (jammed["jam_taken_for_stall_time_s"] - jammed["fault_onset_s"])[taken]
         t = metrics.quantiles(after)
+        when = f"; time after the jam onset median {_fmt(t['median'])} s, max {_fmt(t['max'])} s" if taken.any() else ""
         lines.append(f"- Jammed runs with eta = 1 (either identification method) on the jammed rod: "
-                     f"{_interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}; time after the jam onset median "
-                     f"{_fmt(t['median'])} s, max {_fmt(t['max'])} s.")
+                     f"{_interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}{when}.")
     else:
         lines.append("- No jammed runs in this campaign.")
     lines.append(f"- LOE false alarms in fault-free runs: {_interval(loe['k'], loe['n'], loe['lo'], loe['hi'])}.")

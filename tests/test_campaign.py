@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import binomtest
 
 import mcfdd
-from mcfdd import cli, config
+from mcfdd import cli, config, io
 from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
 from mcfdd.workflows.common import load_bank
 
@@ -58,11 +58,11 @@ def scenario_table(out: Path) -> pd.DataFrame:
     return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True)
 
 
-# The shipped false-alarm campaign, shortened: 64 Sobol samples on each of the 5 manoeuvre families
-# = 320 scenarios of 2 s. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
+# The shipped false-alarm campaign, shortened: 320 scenarios of 2 s = 64 Sobol samples on each of the
+# 5 manoeuvre families. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
 # 3 chunks (128, 128, 64), 256 runs 2 (256, 64). A low tau_m gives false alarms to count.
 FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
-SHORT = {"campaign.scenarios": 64, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
+SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
 ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.confirm_s": 0.0,
             "fdd.loe.excitation_floor_deg": 0.005}
@@ -113,7 +113,7 @@ def test_script_reruns_with_new_tau_without_compiling_and_matches_the_cli(in_mem
 def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
     _, second, _ = in_memory
     saved = {p.relative_to(tmp_path / "s") for p in second.save(tmp_path / "s")}
-    assert saved == {p.relative_to(cli_run) for p in cli_run.rglob("*") if p.is_file()}
+    assert saved == {p.relative_to(cli_run) for p in cli_run.rglob("*") if p.is_file() and p.name != io.LOCK_NAME}
     for name in ("summary.parquet", "gaps.parquet", "confusion.parquet"):
         pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "s" / name), pd.read_parquet(cli_run / name))
     fig = second.plot("rates_by_manoeuvre")
@@ -330,7 +330,7 @@ def test_designs_respect_the_mach_limit_and_grid_axes():
     mach = np.asarray(scenarios.atmosphere.mach(cols["vcas_kt"] * scenarios.atmosphere.KT_TO_M_S, cols["altitude_m"]))
     assert mach.max() <= 0.82 + 1e-9
     grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4), scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
-    cols, n = scenarios.design_table(grid, 0, "grid", seed=0, max_mach=0.82)
+    cols, n = scenarios.design_table(grid, 1, "grid", seed=0, max_mach=0.82)
     assert n < 8 and set(cols["altitude_m"]) == {0.0, 12000.0}
 
 
@@ -402,7 +402,7 @@ def test_bad_flags_are_named(tmp_path, capsys):
 
 def test_non_finite_scenario_is_marked_and_the_batch_goes_on():
     cfg = config.parse(config.CampaignConfig, {"campaign": {"scenarios": 4, "duration_s": 1.0, "design": "random"},
-                                               "space": {"vcas_kt": [200.0, 300.0]}})
+                                               "evaluation": {"settle_s": 0.2}, "space": {"vcas_kt": [200.0, 300.0]}})
     cols, n = build.design(cfg)
     model = build.plant_model(cfg.plant)
     bank, _ = load_bank(cfg.fdd, np.float64)

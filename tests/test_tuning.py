@@ -333,7 +333,7 @@ def test_fragment_round_trip_and_campaign_option(tmp_path):
     path.write_text(config.fdd_fragment(fdd, "tuned\nby a test"))
     assert config.load_fdd_fragment(path) == fdd
     campaign_cfg = tmp_path / "c.toml"
-    campaign_cfg.write_text("[campaign]\nscenarios = 4\n[fdd.stall]\ntau_deg = 9.0\n")
+    campaign_cfg.write_text("[campaign]\nscenarios = 4\n[fdd.stall]\ntau_deg = 9.0\n[space]\nkci_scale = [0.9, 1.1]\n")
     args = argparse.Namespace(config=str(campaign_cfg), scenarios=None, seed=None, chunk_size=None, fdd=str(path))
     assert cli._campaign_config(args).fdd == fdd
     args.fdd = None

@@ -120,7 +120,8 @@ def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray,
 def design(cfg: config.CampaignConfig) -> tuple[dict, int]:
     """Scenario columns of a campaign's design (dict of arrays) and their number of rows."""
     c = cfg.campaign
-    cols, n = scenarios.design_table(list(cfg.space.axes), c.scenarios, c.design, c.seed, c.grid,
+    _, cells = cfg.grid_cells()
+    cols, n = scenarios.design_table(list(cfg.space.axes), c.scenarios // cells, c.design, c.seed, c.grid,
                                      cfg.plant.aircraft.max_mach)
     kind = np.asarray(cols["fault_kind"])
     size = np.zeros(n)

@@ -100,9 +100,10 @@ def unit_sample(design: str, dim: int, n: int, seed: int) -> np.ndarray:
 
 
 def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_axes=(), max_mach: float = 0.82):
-    """Columns (dict of arrays) of a design: grid axes crossed with ``n_samples`` draws of the rest.
+    """Columns (dict of arrays) of a design: each cell of the grid axes with ``n_samples`` draws of the rest.
 
-    With ``design == 'grid'`` every non-constant axis is gridded and ``n_samples`` is ignored.
+    With ``design == 'grid'`` every non-constant axis is gridded; the ``n_samples`` rows of a cell
+    then differ only in the random numbers (turbulence, noise) of their scenario ids.
     Columns not in ``axes`` take their :data:`DEFAULTS`. Rows whose grid flight point lies above the
     Mach limit are dropped. Returns (columns, n_rows).
     """
@@ -113,22 +114,21 @@ def design_table(axes: list[Axis], n_samples: int, design: str, seed: int, grid_
     cells = [dict(zip([a.name for a in gridded], combo)) for combo in
              np.array(np.meshgrid(*[np.arange(len(a.grid_values())) for a in gridded], indexing="ij")).reshape(
                  len(gridded), -1).T] if gridded else [{}]
-    per_cell = 1 if design == "grid" else n_samples
-    u = unit_sample("random" if design == "grid" else design, len(sampled), per_cell, seed)
+    u = unit_sample("random" if design == "grid" else design, len(sampled), n_samples, seed)
     cols: dict[str, np.ndarray] = {}
     for a in axes:
         if a.kind == "const":
-            cols[a.name] = np.repeat(np.asarray([a.values[0]]), len(cells) * per_cell)
+            cols[a.name] = np.repeat(np.asarray([a.values[0]]), len(cells) * n_samples)
     for a in gridded:
         vals = np.asarray(a.grid_values())
-        cols[a.name] = np.repeat(np.array([vals[c[a.name]] for c in cells]), per_cell)
+        cols[a.name] = np.repeat(np.array([vals[c[a.name]] for c in cells]), n_samples)
     for j, a in enumerate(sampled):
         uj = np.tile(u[:, j], len(cells))
         if a.name == "vcas_kt" and a.kind == "range":
             cols["_u_vcas"] = uj
         else:
             cols[a.name] = a.from_unit(uj)
-    n = len(cells) * per_cell
+    n = len(cells) * n_samples
     altitude = np.asarray(cols.get("altitude_m", np.full(n, DEFAULTS["altitude_m"])), dtype=float)
     v_max = mach_limit_speed_kt(altitude, max_mach)
     if "_u_vcas" in cols:

@@ -8,6 +8,7 @@ with an output folder, writes one Parquet part per chunk as they arrive.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import json
 from pathlib import Path
 from typing import NamedTuple
@@ -75,6 +76,18 @@ def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
                          batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
 
 
+def design_line(cfg: config.CampaignConfig, n: int) -> str:
+    """How the campaign's scenarios are made up, e.g. '16384 scenarios = 4096 samples x 4 cells of fault_kind'."""
+    c = cfg.campaign
+    names, cells = cfg.grid_cells()
+    line = f"{c.scenarios} scenarios = {c.scenarios // cells} samples"
+    if names:
+        line += f" x {cells} cells of {' x '.join(names)}"
+    if n < c.scenarios:
+        line += f" ({c.scenarios - n} above the Mach limit dropped: {n} run)"
+    return line
+
+
 def chunk_size(requested: int, n: int) -> int:
     """Scenarios per chunk: ``requested`` (at most n) rounded up to LANE_BLOCK x devices."""
     import jax
@@ -127,11 +140,13 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int) -> dict:
         raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
                                  c.substeps, setup.kinds)
         raw = {k: np.asarray(v)[:len(ids)] for k, v in raw.items()}
-    outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
-                            cfg.evaluation.t_detec_s)
-    table = {"scenario_id": ids, **{k: np.asarray(v)[ids] for k, v in setup.cols.items()}, **outc}
-    table.update(metrics.detectability_columns({k: np.asarray(v)[ids] for k, v in setup.cols.items()},
-                                               outc["peak_load_fraction"], metrics.uncertainty_ranges(setup.cols)))
+        # scored at the campaign's precision too: a caller's jax_enable_x64 does not change the table
+        outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
+                                cfg.evaluation.t_detec_s)
+        design = {k: np.asarray(v)[ids] for k, v in setup.cols.items()}
+        table = {"scenario_id": ids, **design, **outc}
+        table.update(metrics.detectability_columns(design, outc["peak_load_fraction"],
+                                                   metrics.uncertainty_ranges(setup.cols)))
     for i in range(len(setup.names)):
         table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
         table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
@@ -149,17 +164,40 @@ def _state_text(cfg: config.CampaignConfig) -> str:
     return json.dumps(_resolved(cfg), indent=1, sort_keys=True)
 
 
+@contextlib.contextmanager
+def _writing(out: Path, advice: str):
+    """Turns a failed write under ``out`` (no space, read-only, ...) into one line naming the file."""
+    try:
+        yield
+    except OSError as err:
+        raise OutputFolderError(f"out: cannot write {err.filename or out}: {err.strerror or err}; {advice}") from None
+
+
+def _check_out(out: Path, resume: bool):
+    """Refuse an output path that cannot hold this campaign, before anything is made."""
+    if out.exists() and not out.is_dir():
+        raise OutputFolderError(f"out: {out} exists and is not a folder; choose a folder")
+    if resume and not (out / CAMPAIGN_STATE).is_file():
+        raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
+
+
 def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
     state = out / CAMPAIGN_STATE
     if resume:
-        if not state.is_file():
-            raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
-        if json.loads(state.read_text()) != _resolved(cfg):
-            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with")
+        try:
+            stored = json.loads(state.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise OutputFolderError(f"resume: {state} is not a readable campaign state ({err})") from None
+        changed = config.differences(stored, _resolved(cfg))
+        if changed:
+            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
+                                    + "; ".join(f"{key} was {json.dumps(a)}, now {json.dumps(b)}"
+                                                for key, a, b in changed))
         return
-    if out.exists() and any(out.iterdir()):
+    if io.folder_entries(out):
         raise OutputFolderError(f"out: {out} exists and is not empty; resume it or choose another folder")
-    io.write_text(state, _state_text(cfg))
+    with _writing(out, "choose a folder you can write to"):
+        io.write_text(state, _state_text(cfg))
 
 
 def _part_name(first_id: int) -> str:
@@ -278,13 +316,44 @@ class CampaignResult:
         return written
 
 
-def _read_parts(parts_dir: Path, n: int):
-    """Tables already written under ``parts_dir`` with their part numbers, and which ids they hold."""
-    import pandas as pd
+def _part_damage(part: Path, setup: CampaignSetup, done: np.ndarray):
+    """(table, None) for a sound part of this campaign, (None, what is wrong) for a damaged one.
 
-    frames, labels, done = [], [], np.zeros(n, dtype=bool)
+    Sound: readable in full with its page checksums, named after its first scenario id, holding
+    ids of this campaign that no other part holds, with exactly the design values of those ids.
+    """
+    try:
+        df = io.read_checked_table(part)
+    except ValueError as err:
+        return None, f"unreadable: {err}"
+    missing = [c for c in ("scenario_id", *setup.cols) if c not in df.columns]
+    if missing:
+        return None, f"column {missing[0]} missing"
+    ids = df["scenario_id"].to_numpy()
+    if not len(ids) or ids.dtype.kind not in "iu" or ids.min() < 0 or ids.max() >= setup.n:
+        return None, f"scenario ids outside 0..{setup.n - 1}"
+    if part.name != _part_name(int(ids[0])) or len(np.unique(ids)) != len(ids) or done[ids].any():
+        return None, "scenario ids repeated or not those of its name"
+    for column, values in setup.cols.items():
+        if not np.array_equal(df[column].to_numpy(), np.asarray(values)[ids]):
+            return None, f"column {column} differs from the campaign's design"
+    return df, None
+
+
+def _read_parts(parts_dir: Path, setup: CampaignSetup):
+    """Sound tables already written under ``parts_dir`` with their part numbers, and which ids they hold.
+
+    A damaged part (:func:`_part_damage`) is renamed ``*.damaged`` and named on stderr; its
+    scenarios are run again.
+    """
+    frames, labels, done = [], [], np.zeros(setup.n, dtype=bool)
     for part in sorted(parts_dir.glob("part-*.parquet")):
-        df = pd.read_parquet(part)
+        df, damage = _part_damage(part, setup, done)
+        if damage is not None:
+            aside = part.with_name(part.name + ".damaged")
+            part.replace(aside)
+            note(f"resume: {part} is damaged ({damage}); moved to {aside.name}, its scenarios are run again", True)
+            continue
         frames.append(df)
         labels.append(np.full(len(df), int(part.stem.split("-")[1])))
         done[df["scenario_id"].to_numpy()] = True
@@ -311,27 +380,47 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
         writes for the same config and seed, whatever the chunk size, devices or executor.
 
     >>> import mcfdd
-    >>> cfg = mcfdd.load_config({"campaign": {"scenarios": 2, "duration_s": 0.1}})
+    >>> cfg = mcfdd.load_config({"campaign": {"scenarios": 2, "duration_s": 0.1}, "evaluation": {"settle_s": 0.0},
+    ...                          "space": {"kci_scale": [0.9, 1.1]}})
     >>> result = mcfdd.run_campaign(cfg, progress=False)
     >>> len(result.scenarios), int(result.overall()["runs"])
     (2, 2)
     """
+    cfg = as_config(cfg, "campaign")
+    if out is None:
+        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title)
+    out = Path(out)
+    _check_out(out, resume)
+    with precision(cfg.campaign.precision):
+        _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
+    with _writing(out, "choose a folder you can write to"):
+        lock = io.lock_folder(out)
+    if lock is None:
+        raise OutputFolderError(f"out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for "
+                                f"it to end or choose another folder")
+    try:
+        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title)
+    finally:
+        lock.release()
+
+
+def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title) -> CampaignResult:
+    """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
     import pandas as pd
 
-    cfg = as_config(cfg, "campaign")
     c = cfg.campaign
     with precision(c.precision):
         setup = _setup_of(cfg)
         size = chunk_size(c.chunk_size, setup.n)
     n, names = setup.n, setup.names
     if out is not None:
-        out = Path(out)
         _prepare_dir(out, cfg, resume)
-    frames, labels, done = _read_parts(out / "scenarios", n) if out is not None and resume else ([], [], np.zeros(
+    frames, labels, done = _read_parts(out / "scenarios", setup) if out is not None and resume else ([], [], np.zeros(
         n, dtype=bool))
     todo = np.flatnonzero(~done)
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+    note(design_line(cfg, n), progress)
     note(f"campaign: {n} scenarios of {c.duration_s} s ({c.n_steps} steps, {c.precision}), {len(todo)} to run in "
          f"{len(chunks)} chunk(s) of {size}", progress)
     with bar(len(todo), "scenarios", progress, unit="scen") as shown:
@@ -343,7 +432,8 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
         for ids, table in finished:
             frame = pd.DataFrame(table)
             if out is not None:
-                io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
+                with _writing(out, "the parts written so far are kept; make room and continue with --resume"):
+                    io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
             frames.append(frame)
             labels.append(np.full(len(ids), int(ids[0])))
             shown.update(len(ids))
@@ -354,5 +444,6 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
                             len(todo))
     if out is not None:
-        result.save(out, title)
+        with _writing(out, "every scenario part is written; make room and continue with --resume"):
+            result.save(out, title)
     return result

@@ -223,7 +223,7 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
              f"false alarms, then missed detections (campaign definitions, {cfg.fdd.stall.identification} "
              f"identification for stall loads), and the middle of the best is kept. Chosen: tau = "
              f"{tau * scale:.5g} {units}.",
-             "", f"Held-out campaign: {cfg.validation.scenarios} scenarios per design cell, seed "
+             "", f"Held-out campaign: {cfg.validation.scenarios} scenarios, seed "
              f"{cfg.validation.seed}, {cfg.validation.duration_s} s, run with the FDD before and after tuning "
              f"({t_val:.1f} s); the FDD numbers are traced, so both runs share one compilation (XLA compilations "
              f"counted by JAX's monitoring events during each run: {compiles['before']}, {compiles['after']}). "

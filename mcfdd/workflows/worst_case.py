@@ -81,7 +81,7 @@ def worst_case(cfg, progress: bool = True) -> WorstCaseResult:
         A :class:`WorstCaseResult`.
 
     >>> import mcfdd
-    >>> cfg = {"simulation": {"duration_s": 0.2}, "space": {"vcas_kt": [200.0, 300.0]},
+    >>> cfg = {"simulation": {"duration_s": 0.2}, "evaluation": {"settle_s": 0.1}, "space": {"vcas_kt": [200.0, 300.0]},
     ...        "search": {"screening": 2, "starts": 1, "iterations": 1}}
     >>> result = mcfdd.worst_case(cfg, progress=False)
     >>> result.value, result.points["method"].iloc[0]

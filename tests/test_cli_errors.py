@@ -1,0 +1,279 @@
+"""Mistakes a user can make end with one line naming the flag, key or file and exit status 2.
+
+The command runs in process (``mcfdd.cli.main``) except where a process must be killed. The
+campaign is the small one of ``test_campaign`` (384 scenarios of 4 s: several chunks).
+"""
+
+import errno
+import json
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+from test_campaign import SMALL
+
+import mcfdd
+from mcfdd import cli, io, report
+from mcfdd.analysis import build
+from mcfdd.workflows import campaign as campaign_workflow
+
+N = 384
+CONFIGS = pathlib.Path(__file__).resolve().parent.parent / "configs"
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    path = tmp_path_factory.mktemp("config") / "small.toml"
+    path.write_text(SMALL.format(n=N))
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean(small):
+    """The campaign's table from an uninterrupted in-memory run."""
+    return mcfdd.run_campaign(small, progress=False).scenarios
+
+
+@pytest.fixture(scope="module")
+def finished(small, tmp_path_factory):
+    """A folder holding the whole campaign, written by the command."""
+    out = tmp_path_factory.mktemp("finished") / "c"
+    assert cli.main(["campaign", str(small), "--out", str(out)]) == 0
+    return out
+
+
+def table(out) -> pd.DataFrame:
+    parts = sorted((out / "scenarios").glob("part-*.parquet"))
+    return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True)
+
+
+def refused(capsys, *argv) -> str:
+    """Runs the command, checks it is refused with one line and no traceback; returns the line."""
+    code = cli.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith("mcfdd: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def _binary(tmp_path, small):
+    path = tmp_path / "binary.toml"
+    path.write_bytes(bytes(range(256)) * 4)
+    return [path], [str(path), "not a text file"]
+
+
+def _latin1(tmp_path, small):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b"[campaign]\nscenarios = 8 # caf\xe9\n")
+    return [path], [str(path), "UTF-8"]
+
+
+def _missing(tmp_path, small):
+    return [tmp_path / "nothing.toml"], ["nothing.toml", "no such configuration file"]
+
+
+def _out_onto_file(tmp_path, small):
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    return [small, "--out", target], ["--out", str(target), "not a folder"]
+
+
+def _seed(tmp_path, small):
+    return [small, "--seed", 99999999999999999999], ["--seed", "99999999999999999999", "[0, 4294967295]"]
+
+
+def _scenarios(tmp_path, small):
+    return [small, "--scenarios", 20000000], ["--scenarios", "20000000", "[1, 10000000]"]
+
+
+def _chunk_size(tmp_path, small):
+    return [small, "--chunk-size", 0], ["--chunk-size", "[1, 1000000]"]
+
+
+def _not_a_multiple(tmp_path, small):
+    return [small, "--scenarios", 322, "--set", 'campaign.grid=["fault_kind"]'], [
+        "campaign.scenarios", "322 is not a multiple of the 5 grid cells of fault_kind"]
+
+
+def _settle(tmp_path, small):
+    return [small, "--set", "evaluation.settle_s=4.0"], ["evaluation.settle_s", "not below the runs' duration (4.0 s)"]
+
+
+def _manoeuvre_window(tmp_path, small):
+    return [small, "--set", "campaign.duration_s=60.0", "--set", "space.t_start_s=[20.0, 90.0]"], [
+        "space.t_start_s", "manoeuvres up to 90.0 s start at or after the end of the runs (60.0 s)"]
+
+
+def _onset(tmp_path, small):
+    return [small, "--set", "space.fault_onset_s=[1.0, 5.0]"], ["space.fault_onset_s", "up to 5.0 s"]
+
+
+def _empty_space(tmp_path, small):
+    path = tmp_path / "empty_space.toml"
+    path.write_text("[campaign]\nscenarios = 8\nduration_s = 4.0\n")
+    return [path], [str(path), "space: nothing varies"]
+
+
+def _bad_fdd_file(tmp_path, small):
+    path = tmp_path / "fdd.toml"
+    path.write_bytes(b"\xff\xfe[fdd]\n")
+    return [small, "--fdd", path], [str(path), "not a text file"]
+
+
+def _read_only(tmp_path, small, monkeypatch):
+    def read_only(self, *args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", read_only)
+    return [small], [str(tmp_path / "out"), os.strerror(errno.EROFS)]
+
+
+CASES = {f.__name__[1:]: f for f in (_binary, _latin1, _missing, _out_onto_file, _seed, _scenarios, _chunk_size,
+                                     _not_a_multiple, _settle, _manoeuvre_window, _onset, _empty_space,
+                                     _bad_fdd_file)}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_input_is_refused_naming_it_before_any_folder_is_made(case, small, tmp_path, capsys):
+    args, named = CASES[case](tmp_path, small)
+    out = tmp_path / "out"
+    if "--out" not in args:
+        args = [*args, "--out", out]
+    line = refused(capsys, "campaign", *args)
+    for text in named:
+        assert text in line
+    assert not out.exists()
+
+
+def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
+    args, named = _read_only(tmp_path, small, monkeypatch)
+    line = refused(capsys, "campaign", *args, "--out", tmp_path / "out")
+    for text in named:
+        assert text in line
+
+
+def test_simulate_out_onto_a_file_is_refused_before_simulating(tmp_path, capsys):
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    line = refused(capsys, "simulate", CONFIGS / "fig5.toml", "--out", target)
+    assert "--out" in line and str(target) in line
+    assert target.read_text() == "keep me"
+
+
+def test_full_disk_mid_run_is_named_and_resume_completes_the_table(small, clean, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "c"
+    write_table, calls = io.write_table, []
+
+    def disk_full_at_second_part(df, path, meta):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return write_table(df, path, meta)
+
+    monkeypatch.setattr(io, "write_table", disk_full_at_second_part)
+    line = refused(capsys, "campaign", small, "--out", out)
+    assert str(calls[1]) in line and os.strerror(errno.ENOSPC) in line and "--resume" in line
+    monkeypatch.setattr(io, "write_table", write_table)
+    assert [p.name for p in (out / "scenarios").glob("*.parquet")] == [calls[0].name]
+    assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0
+    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+
+
+def test_changed_config_on_resume_names_every_differing_key(small, finished, capsys):
+    line = refused(capsys, "campaign", small, "--out", finished, "--resume", "--seed", 3, "--set",
+                   "fdd.loe.tau=0.2")
+    assert "campaign.seed was 7, now 3" in line and "fdd.loe.tau was 0.1, now 0.2" in line
+
+
+def test_folder_in_use_is_refused_naming_it(small, finished, capsys):
+    lock = io.lock_folder(finished)
+    try:
+        for extra in ([], ["--resume"]):
+            line = refused(capsys, "campaign", small, "--out", finished, *extra)
+            assert str(finished) in line and "in use" in line
+    finally:
+        lock.release()
+    again = io.lock_folder(finished)
+    assert again is not None
+    again.release()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "corrupted bytes"])
+def test_damaged_part_is_named_and_run_again_on_resume(damage, small, clean, finished, tmp_path, capsys):
+    out = tmp_path / "c"
+    shutil.copytree(finished, out)
+    parts = sorted((out / "scenarios").glob("part-*.parquet"))
+    assert len(parts) > 1
+    victim = parts[1]
+    data = bytearray(victim.read_bytes())
+    if damage == "truncated":
+        data = data[:len(data) // 2]
+    else:
+        data[len(data) // 3:len(data) // 3 + 16] = bytes(16)
+    victim.write_bytes(bytes(data))
+    simulated = []
+    result = mcfdd.run_campaign(small, out=out, resume=True, progress=False, on_chunk=simulated.append)
+    err = capsys.readouterr().err
+    assert f"{victim} is damaged" in err
+    assert (out / "scenarios" / (victim.name + ".damaged")).is_file()
+    rows = pd.read_parquet(finished / "scenarios" / victim.name)["scenario_id"].to_numpy()
+    assert len(simulated) == 1 and list(simulated[0]) == list(rows)
+    pd.testing.assert_frame_equal(result.scenarios, clean, check_exact=True)
+    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+
+
+def test_sigkill_between_chunks_then_resume_gives_the_clean_table(small, clean, tmp_path):
+    out = tmp_path / "killed"
+    log = tmp_path / "killed.log"
+    with log.open("w") as stderr:
+        proc = subprocess.Popen([sys.executable, "-m", "mcfdd.cli", "campaign", str(small), "--out", str(out)],
+                                stdout=subprocess.DEVNULL, stderr=stderr)
+        deadline = time.monotonic() + 600
+        while not list((out / "scenarios").glob("part-*.parquet")) and proc.poll() is None:
+            assert time.monotonic() < deadline, "no part written in 600 s"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL, log.read_text()
+    written = list((out / "scenarios").glob("part-*.parquet"))
+    assert 0 < len(written) and sum(len(pd.read_parquet(p)) for p in written) < N
+    assert (out / io.LOCK_NAME).is_file()  # the lock file stays; its OS lock died with the process
+    resumed = mcfdd.run_campaign(small, out=out, resume=True, progress=False)
+    assert 0 < resumed.simulated < N
+    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+    assert json.loads((out / "campaign.json").read_text())["campaign"]["seed"] == 7
+
+
+def test_scenarios_is_the_total_split_evenly_over_the_grid_cells():
+    cfg = mcfdd.load_config(CONFIGS / "loe_campaign.toml")
+    cols, n = build.design(cfg)
+    assert n == cfg.campaign.scenarios == 16384
+    assert pd.Series(cols["fault_kind"]).value_counts().to_dict() == {
+        k: 4096 for k in ("none", "leakage", "surface_damage", "disconnection")}
+    assert campaign_workflow.design_line(cfg, n) == "16384 scenarios = 4096 samples x 4 cells of fault_kind"
+    stall = mcfdd.load_config(CONFIGS / "stall_campaign.toml", overrides={"campaign.scenarios": 512})
+    assert build.design(stall)[1] == 512
+    assert campaign_workflow.design_line(stall, 512) == (
+        "512 scenarios = 64 samples x 8 cells of fault_kind x manoeuvre_kind")
+
+
+def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
+    free = clean[(clean["fault_kind"] == "none") & (clean["stall_events"] == 0)]
+    summ = report.summary(free)
+    text = report.markdown("fault-free", summ, report.confusion(free, ["a"] * 6), report.gaps(free, 1.0), {})
+    text += report.stall_scoring_markdown(free)
+    assert "nan" not in text and "n/a" in text
+    assert "stall events" not in text and "worst" not in text  # no stall columns without a stall load
+    overall = summ[summ["stratum"] == "overall"].iloc[0].to_dict()
+    assert cli._rate(overall, "mdr") == "n/a" and cli._rate(overall, "far").startswith(f"{overall['far']:.4g} [")
+    assert cli._decisions({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
+    assert cli._decisions({}) == "none"
+    assert cli._num(float("nan"), ".2f", " s") == "n/a" and cli._num(1.234, ".2f", " s") == "1.23 s"
