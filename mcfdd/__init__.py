@@ -20,7 +20,7 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str):
-    """``mcfdd.dask_cluster`` and ``mcfdd.dask_security``, imported on first use (they need the ``distributed`` extra)."""
+    """``mcfdd.dask_cluster`` and ``mcfdd.dask_security``, imported on first use (the ``distributed`` extra)."""
     if name in ("dask_cluster", "dask_security"):
         from mcfdd.workflows import cluster
 
@@ -30,6 +30,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError", "Status",
-    "TuneResult", "WorstCaseResult", "__version__", "dask_cluster", "dask_security", "fit_lpv", "load_config", "paper_figures", "run_campaign",
+    "TuneResult", "WorstCaseResult", "__version__", "dask_cluster", "dask_security", "fit_lpv", "load_config",
+    "paper_figures", "run_campaign",
     "simulate", "tune", "worst_case",
 ]

@@ -256,8 +256,8 @@ def test_a_second_process_loads_the_compiled_program_from_the_cache_with_the_sam
     folder = tmp_path / "cache"
     hits = []
     for run in ("cold", "warm"):
-        done = subprocess.run([sys.executable, "-c", RUN_WITH_CACHE, json.dumps(small), str(tmp_path / run), str(folder)],
-                              capture_output=True, text=True, check=True)
+        command = [sys.executable, "-c", RUN_WITH_CACHE, json.dumps(small), str(tmp_path / run), str(folder)]
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
         hits.append(int(done.stdout.split()[-1]))
         table = pd.read_parquet(tmp_path / run / "scenarios" / "part-00000000.parquet")
         _same(reference.scenarios, table)

@@ -1,4 +1,4 @@
-"""Campaign chunks on Dask distributed (the ``distributed`` extra): a local cluster, an existing scheduler, and the workers' set-up.
+"""Campaign chunks on Dask distributed (the ``distributed`` extra): local cluster, existing scheduler, worker set-up.
 
 Dask runs the chunk tasks (:func:`mcfdd.workflows.campaign.run_chunk`) with its own retries: a
 task whose worker dies is run again elsewhere, and the driver writes each part as its result
