@@ -222,6 +222,15 @@ def test_a_scheduler_without_workers_is_a_one_line_error_within_the_timeout(no_w
     assert not (tmp_path / "x").exists()
 
 
+def test_the_command_prints_the_plain_tcp_warning_as_one_line():
+    done = subprocess.run([sys.executable, "-m", "mcfdd.cli", "campaign", LOE_CAMPAIGN, "--scheduler",
+                           "tcp://192.0.2.7:8786", "--connect-timeout", "1"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    warning, error = done.stderr.strip().splitlines()
+    assert warning.startswith("mcfdd: warning: scheduler tcp://192.0.2.7:8786: plain tcp:// to another host")
+    assert error.startswith("mcfdd: configuration error: scheduler: cannot reach tcp://192.0.2.7:8786 within 1 s")
+
+
 def test_plain_tcp_to_another_host_warns_and_tls_or_loopback_do_not():
     with pytest.warns(UserWarning, match="plain tcp:// to another host"):
         dask_cluster.check_address("tcp://192.0.2.7:8786")
