@@ -225,8 +225,9 @@ def test_a_scheduler_without_workers_is_a_one_line_error_within_the_timeout(no_w
 
 
 def test_the_command_prints_the_plain_tcp_warning_as_one_line():
-    done = subprocess.run([sys.executable, "-m", "mcfdd.cli", "campaign", LOE_CAMPAIGN, "--scheduler",
-                           "tcp://192.0.2.7:8786", "--connect-timeout", "1"], capture_output=True, text=True, timeout=60)
+    command = [sys.executable, "-m", "mcfdd.cli", "campaign", LOE_CAMPAIGN, "--scheduler", "tcp://192.0.2.7:8786",
+               "--connect-timeout", "1"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     warning, error = done.stderr.strip().splitlines()
     assert warning.startswith("mcfdd: warning: scheduler tcp://192.0.2.7:8786: plain tcp:// to another host")
