@@ -18,8 +18,19 @@ from mcfdd.workflows.worst_case import WorstCaseResult, worst_case
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str):
+    """``mcfdd.dask_cluster`` and ``mcfdd.dask_security``, imported on first use (the ``distributed`` extra)."""
+    if name in ("dask_cluster", "dask_security"):
+        from mcfdd.workflows import cluster
+
+        return {"dask_cluster": cluster.dask_cluster, "dask_security": cluster.security}[name]
+    raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
+
+
 __all__ = [
     "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError", "Status",
-    "TuneResult", "WorstCaseResult", "__version__", "fit_lpv", "load_config", "paper_figures", "run_campaign",
+    "TuneResult", "WorstCaseResult", "__version__", "dask_cluster", "dask_security", "fit_lpv", "load_config",
+    "paper_figures", "run_campaign",
     "simulate", "tune", "worst_case",
 ]

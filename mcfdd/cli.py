@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
 import tomllib
+import warnings
 from pathlib import Path
 
 import mcfdd
@@ -89,6 +91,29 @@ def _campaign_config(args) -> config.CampaignConfig:
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
+@contextlib.contextmanager
+def _campaign_executor(args):
+    """None (chunks in this process), or a Dask client for ``--scheduler`` / ``--workers``, closed on exit."""
+    if args.scheduler is None and args.workers is None:
+        yield None
+        return
+    if args.connect_timeout <= 0:
+        raise config.ConfigError(f"--connect-timeout: {args.connect_timeout} is not allowed; expected seconds > 0")
+    try:
+        security = mcfdd.dask_security(args.tls_ca_file, args.tls_cert, args.tls_key)
+    except ImportError:
+        raise config.ConfigError("--scheduler/--workers need Dask: pip install 'mcfdd[distributed]'") from None
+    with mcfdd.dask_cluster(args.scheduler, args.workers, security, args.connect_timeout) as client:
+        yield client
+
+
+def _workers_line(workers) -> str:
+    """The per-worker throughput of a campaign as one line."""
+    return f"workers: {len(workers)}; " + ", ".join(
+        f"{w['worker']} {w['scenarios']} scen in {w['chunks']} chunk(s), {w['scenario_steps_per_s']:.3g} "
+        f"scenario-steps/s" for _, w in workers.iterrows())
+
+
 def cmd_campaign(args) -> int:
     cfg = _campaign_config(args)
     if args.out:
@@ -98,13 +123,17 @@ def cmd_campaign(args) -> int:
     else:
         out = io.unused_out_dir("campaign", args.config)
     try:
-        result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}")
+        with _campaign_executor(args) as executor:
+            result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
+                                        executor=executor, compile_cache=args.compile_cache)
     except KeyboardInterrupt:
         _say(f"\ninterrupted: finished chunks are kept in {out / 'scenarios'}; continue with --resume")
         return 130
     overall = result.overall()
     stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
     print(f"{overall['runs']} scenarios: FAR {_rate(overall, 'far')}, MDR {_rate(overall, 'mdr')}{stalls}")
+    if len(result.workers):
+        print(_workers_line(result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
 
@@ -186,6 +215,22 @@ def _command(sub, name: str, func, summary: str, example: str | None, out: str):
     return p
 
 
+def _cluster_flags(p):
+    """Where a campaign's chunks run (Dask distributed) and where compiled programs are kept."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDR", help="run the chunks on the Dask cluster of this scheduler, "
+                       "e.g. tls://HOST:8786 (tcp:// only inside a trusted network)")
+    where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local Dask cluster of N worker "
+                       "processes (127.0.0.1 only), closed at the end")
+    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to reach --scheduler and then to wait for a worker (default 10)")
+    for flag, what in (("--tls-ca-file", "CA certificate"), ("--tls-cert", "client certificate"),
+                       ("--tls-key", "client certificate's key")):
+        p.add_argument(flag, metavar="FILE", help=f"TLS {what} for a tls:// scheduler (default: Dask's configuration)")
+    p.add_argument("--compile-cache", metavar="DIR|off", help="folder of JAX's persistent compilation cache, here "
+                   "and on the workers (default ~/.cache/mcfdd/jax); 'off' to compile every time")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mcfdd", description="Monte-Carlo robustness analysis of flight-actuator fault detection and diagnosis "
@@ -203,6 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set fdd.loe.tau=0.12 (repeatable)")
+    _cluster_flags(p)
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
     p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,
@@ -225,7 +271,12 @@ def _check_out_flag(args):
         raise config.ConfigError(f"--out: {out} exists and is not a folder; choose a folder")
 
 
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    return f"mcfdd: warning: {message}\n"
+
+
 def main(argv=None) -> int:
+    warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
     try:
         _check_out_flag(args)

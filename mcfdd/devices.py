@@ -25,9 +25,7 @@ def use_all_cores() -> int | None:
         return None
     count = os.cpu_count() or 1
     if "jax" in sys.modules:
-        from jax._src import xla_bridge
-
-        if xla_bridge.backends_are_initialized():
+        if _backends_started():
             import jax
 
             if jax.device_count() < count:
@@ -38,6 +36,32 @@ def use_all_cores() -> int | None:
             return None
     os.environ["XLA_FLAGS"] = f"{flags} {FLAG}={count}".strip()
     return count
+
+
+def use_cores(count: int) -> int | None:
+    """Expose ``count`` CPU devices instead of one per core (a process sharing its host, e.g. a Dask worker).
+
+    Only the count mcfdd chose at import is changed, and only before JAX starts its backends; the
+    caller's own ``XLA_FLAGS`` always win. Returns the count requested, or None when unchanged.
+    """
+    global REQUESTED
+    if REQUESTED is None or "jax" in sys.modules and _backends_started():
+        return None
+    os.environ["XLA_FLAGS"] = xla_flags(count)
+    REQUESTED = count
+    return count
+
+
+def xla_flags(count: int) -> str:
+    """This process's ``XLA_FLAGS`` with the host device count set to ``count``."""
+    flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(FLAG))
+    return f"{flags} {FLAG}={count}".strip()
+
+
+def _backends_started() -> bool:
+    from jax._src import xla_bridge
+
+    return xla_bridge.backends_are_initialized()
 
 
 REQUESTED = use_all_cores()

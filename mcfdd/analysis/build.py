@@ -7,12 +7,13 @@ deflection become rod positions through the lever arm r_arm.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
 from mcfdd import config
-from mcfdd.analysis import campaign, lpv_fit, scenarios, worst_case
+from mcfdd.analysis import batch, campaign, lpv_fit, metrics, scenarios, worst_case
 from mcfdd.fdd import evaluator, lpv, stall, system
 from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres
 
@@ -117,20 +118,78 @@ def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray,
     return table, names, family, table["fault_size"]
 
 
-def design(cfg: config.CampaignConfig) -> tuple[dict, int]:
-    """Scenario columns of a campaign's design (dict of arrays) and their number of rows."""
-    c = cfg.campaign
-    _, cells = cfg.grid_cells()
-    cols, n = scenarios.design_table(list(cfg.space.axes), c.scenarios // cells, c.design, c.seed, c.grid,
-                                     cfg.plant.aircraft.max_mach)
+def _fault_size(cfg: config.CampaignConfig, cols: dict) -> dict:
+    """``cols`` with the per-fault size columns of the space merged into one ``fault_size`` column."""
     kind = np.asarray(cols["fault_kind"])
-    size = np.zeros(n)
+    size = np.zeros(len(kind))
     for column, fault in config.SIZE_COLUMNS.items():
         if column in cols:
             size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
     if any(c in {a.name for a in cfg.space.axes} for c in config.SIZE_COLUMNS):
         cols["fault_size"] = size
-    return cols, n
+    return cols
+
+
+def _samples(cfg: config.CampaignConfig) -> int:
+    """Samples per grid cell: ``campaign.scenarios`` is the total over the cells."""
+    return cfg.campaign.scenarios // cfg.grid_cells()[1]
+
+
+def design(cfg: config.CampaignConfig) -> tuple[dict, int]:
+    """Scenario columns of a campaign's design (dict of arrays) and their number of rows."""
+    c = cfg.campaign
+    cols, n = scenarios.design_table(list(cfg.space.axes), _samples(cfg), c.design, c.seed, c.grid,
+                                     cfg.plant.aircraft.max_mach)
+    return _fault_size(cfg, cols), n
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignPlan:
+    """What the chunks of a campaign need of its whole design, computed once (small beside the design).
+
+    Attributes:
+        n: number of scenarios.
+        rows: (n,) raw design row (:func:`mcfdd.analysis.scenarios.design_rows`) of each scenario
+            id, or None when no row was dropped at the Mach limit (scenario id = raw row).
+        whole: the Latin hypercube's unit sample (lhs designs only, else None).
+        ranges: (lo, hi) of each uncertain scale over the whole design (detectability columns).
+        kinds: manoeuvre family codes present in the campaign (static structure of its program).
+    """
+
+    n: int
+    rows: np.ndarray | None
+    whole: np.ndarray | None
+    ranges: dict
+    kinds: tuple
+
+
+def design_plan(cfg: config.CampaignConfig) -> DesignPlan:
+    """The :class:`DesignPlan` of a campaign (builds the whole design once, then keeps only the plan)."""
+    c = cfg.campaign
+    axes = list(cfg.space.axes)
+    samples = _samples(cfg)
+    cells, per_cell = scenarios.design_shape(axes, samples, c.design, c.grid)
+    whole = scenarios.whole_sample(axes, samples, c.design, c.seed, c.grid)
+    cols, keep = scenarios.design_rows(axes, samples, c.design, c.seed, np.arange(cells * per_cell), c.grid,
+                                       cfg.plant.aircraft.max_mach, whole)
+    cols = _fault_size(cfg, {k: np.asarray(v)[keep] for k, v in cols.items()})
+    kinds = batch.kinds_in([manoeuvres.KIND_CODE[k] for k in np.unique(cols["manoeuvre_kind"])])
+    return DesignPlan(int(keep.sum()), None if keep.all() else np.flatnonzero(keep), whole,
+                      metrics.uncertainty_ranges(cols), kinds)
+
+
+def design_chunk(cfg: config.CampaignConfig, plan: DesignPlan, ids) -> dict:
+    """Scenario columns of the scenario ids ``ids`` (any order, repeats allowed), built from their indices.
+
+    The same rows as ``design(cfg)[0]`` indexed by ``ids``, to the last bit, without the rest of
+    the design.
+    """
+    c = cfg.campaign
+    ids = np.asarray(ids, dtype=np.int64)
+    cols, _ = scenarios.design_rows(list(cfg.space.axes), _samples(cfg), c.design, c.seed,
+                                    ids if plan.rows is None else plan.rows[ids], c.grid, cfg.plant.aircraft.max_mach,
+                                    plan.whole)
+    return _fault_size(cfg, cols)
 
 
 def search_space(cfg: config.WorstCaseConfig) -> worst_case.SearchSpace:

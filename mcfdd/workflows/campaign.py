@@ -10,6 +10,9 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import json
+import os
+import socket
+import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -18,6 +21,7 @@ import numpy as np
 from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import bar, note
+from mcfdd.workflows import common
 from mcfdd.workflows.common import DEG_PER_RAD, as_config, dtype_of, load_bank, precision, save_figure
 
 CAMPAIGN_STATE = "campaign.json"
@@ -42,38 +46,37 @@ class OutputFolderError(config.ConfigError):
 
 
 class CampaignSetup(NamedTuple):
-    """What a campaign builds once before its chunk loop (host arrays over all n scenarios)."""
+    """What a process builds once per campaign: plant, FDD, scoring settings and the design's plan.
 
+    The scenarios themselves are built per chunk from their ids (:func:`chunk_inputs`).
+    """
+
+    config: object
     model: object
     names: tuple
     fdd_params: object
     settings: object
-    cols: dict
-    n: int
-    onset: np.ndarray  # fault onset times (s), float64
-    nearest: np.ndarray
-    accept: np.ndarray
-    scenarios: object
-    kinds: tuple
+    nu_bank: np.ndarray  # (N, 2) fault parameters of the bank's models
+    plan: build.DesignPlan
     dtype: type
 
+    @property
+    def n(self) -> int:
+        return self.plan.n
 
-def campaign_setup(cfg: config.CampaignConfig) -> CampaignSetup:
-    """Plant, FDD, evaluation settings, the sampled design and each scenario's truth."""
-    from mcfdd.analysis import batch, scenarios
+    @property
+    def kinds(self) -> tuple:
+        return self.plan.kinds
 
+
+def campaign_setup(cfg: config.CampaignConfig, plan: build.DesignPlan | None = None) -> CampaignSetup:
+    """Plant, FDD, evaluation settings and the design plan (built here unless ``plan`` is given)."""
     dtype = dtype_of(cfg.campaign.precision)
     model = build.plant_model(cfg.plant)
     bank, names = load_bank(cfg.fdd, dtype)
-    cols, n = build.design(cfg)
-    kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
-    nearest, accept = scenarios.true_model(np.asarray(bank.nu), kind,
-                                           np.asarray(cols.get("fault_size", np.zeros(n))))
-    all_scenarios = scenarios.to_scenario(cols, dtype)
-    return CampaignSetup(model, names, build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m),
-                         build.settings(cfg.evaluation, model.actuator.r_arm_m), cols, n,
-                         scenarios.fault_onsets(cols, n), nearest, accept, all_scenarios,
-                         batch.kinds_in(all_scenarios.manoeuvre.kind), dtype)
+    return CampaignSetup(cfg, model, names, build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m),
+                         build.settings(cfg.evaluation, model.actuator.r_arm_m), np.asarray(bank.nu),
+                         build.design_plan(cfg) if plan is None else plan, dtype)
 
 
 def design_line(cfg: config.CampaignConfig, n: int) -> str:
@@ -96,37 +99,46 @@ def chunk_size(requested: int, n: int) -> int:
     return -(-min(requested, max(n, 1)) // block) * block
 
 
-def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
-    """Scenarios, truths and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
-    import jax
-
-    from mcfdd.analysis import campaign, simulate
+def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
+    """Columns, scenarios, truths, nearest models and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
+    from mcfdd.analysis import campaign, scenarios, simulate
 
     padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
-    scen = jax.tree.map(lambda a: a[padded], setup.scenarios)
-    truth = campaign.Truth(setup.onset[padded].astype(setup.dtype), setup.accept[padded])
-    return scen, truth, simulate.run_keys(seed, padded)
+    cols = build.design_chunk(setup.config, setup.plan, padded)
+    kind = np.asarray(cols["fault_kind"])
+    nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
+    onset = scenarios.fault_onsets(cols, size)
+    truth = campaign.Truth(onset.astype(setup.dtype), accept)
+    return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, simulate.run_keys(seed, padded)
+
+
+def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
+    """Scenarios, truths and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
+    _, scen, truth, _, _, keys = _chunk(setup, seed, ids, size)
+    return scen, truth, keys
 
 
 _SETUPS: dict = {}
 
 
-def _setup_of(cfg: config.CampaignConfig) -> CampaignSetup:
+def _setup_of(cfg: config.CampaignConfig, plan: build.DesignPlan | None = None) -> CampaignSetup:
     """The set-up of ``cfg``, built once per process for the chunks of one campaign."""
     key = config.to_json(cfg)
     if key not in _SETUPS:
         _SETUPS.clear()
-        _SETUPS[key] = campaign_setup(cfg)
+        _SETUPS[key] = campaign_setup(cfg, plan)
     return _SETUPS[key]
 
 
-def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int) -> dict:
+def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: build.DesignPlan | None = None) -> dict:
     """Simulate and score the scenarios ``ids`` of a campaign, padded to ``size``.
 
     Args:
         cfg: the campaign config (the chunk is rebuilt from it alone, in whatever process).
-        ids: (k,) scenario ids, k <= size.
+        ids: (k,) scenario ids (any k <= size ids, not necessarily consecutive).
         size: the padded batch size (:func:`chunk_size`), the same for every chunk.
+        plan: the campaign's :class:`mcfdd.analysis.build.DesignPlan` (computed once by the
+            driver and sent to the workers); None builds it here.
 
     Returns:
         The chunk's rows of the scenario table: column name -> (k,) array.
@@ -134,19 +146,18 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int) -> dict:
     from mcfdd.analysis import campaign, metrics
 
     c = cfg.campaign
+    k = len(ids)
     with precision(c.precision):
-        setup = _setup_of(cfg)
-        scen, truth, keys = chunk_inputs(setup, c.seed, ids, size)
+        setup = _setup_of(cfg, plan)
+        cols, scen, truth, onset, nearest, keys = _chunk(setup, c.seed, ids, size)
         raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
                                  c.substeps, setup.kinds)
-        raw = {k: np.asarray(v)[:len(ids)] for k, v in raw.items()}
-        # scored at the campaign's precision too: a caller's jax_enable_x64 does not change the table
-        outc = metrics.outcomes(raw, setup.onset[ids], setup.accept[ids], setup.nearest[ids], c.duration_s,
-                                cfg.evaluation.t_detec_s)
-        design = {k: np.asarray(v)[ids] for k, v in setup.cols.items()}
-        table = {"scenario_id": ids, **design, **outc}
-        table.update(metrics.detectability_columns(design, outc["peak_load_fraction"],
-                                                   metrics.uncertainty_ranges(setup.cols)))
+        raw = {name: np.asarray(v)[:k] for name, v in raw.items()}
+        cols = {name: np.asarray(v)[:k] for name, v in cols.items()}
+        # Scored at the campaign's precision too, so the table does not depend on the process's JAX settings.
+        outc = metrics.outcomes(raw, onset[:k], truth.accept[:k], nearest[:k], c.duration_s, cfg.evaluation.t_detec_s)
+        table = {"scenario_id": ids, **cols, **outc}
+        table.update(metrics.detectability_columns(cols, outc["peak_load_fraction"], setup.plan.ranges))
     for i in range(len(setup.names)):
         table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
         table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
@@ -221,15 +232,18 @@ class CampaignResult:
         meta: provenance (resolved config JSON, seed, version, git revision, model names).
         models: names of the LPV bank's models, filter i = models[i].
         simulated: how many scenarios this call simulated (fewer than the table's rows on resume).
+        workers: per process that ran chunks in this call ('host:pid'): chunks, scenarios, busy
+            seconds and scenario-steps per busy second (:func:`worker_table`).
     """
 
     def __init__(self, cfg: config.CampaignConfig, scenarios, parts: np.ndarray, models, meta: dict,
-                 simulated: int):
+                 simulated: int, workers=None):
         from mcfdd import report
 
         self.config, self.scenarios, self.models, self.meta, self.simulated = cfg, scenarios, tuple(models), meta, \
             simulated
         self._parts = parts
+        self.workers = workers
         deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
         self.summary = report.summary(scenarios)
         self.confusion = report.confusion(scenarios, list(models))
@@ -316,6 +330,41 @@ class CampaignResult:
         return written
 
 
+def chunk_task(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: build.DesignPlan):
+    """:func:`run_chunk` as a task: (its table, the process that ran it as 'host:pid', seconds taken)."""
+    start = time.perf_counter()
+    table = run_chunk(cfg, ids, size, plan)
+    return table, f"{socket.gethostname()}:{os.getpid()}", time.perf_counter() - start
+
+
+def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
+    """The chunks run in process (``executor`` None), on a ``concurrent.futures.Executor`` or on a Dask client.
+
+    Returns (an iterator of (ids, table, worker, seconds) in the order the chunks finish, a
+    function cancelling the tasks not yet done).
+    """
+    if executor is None:
+        return ((ids, *chunk_task(cfg, ids, size, plan)) for ids in chunks), lambda: None
+    if type(executor).__module__.startswith("distributed"):
+        from mcfdd.workflows import cluster
+
+        return cluster.submit(executor, chunk_task, cfg, chunks, size, plan, cache)
+    futures = {executor.submit(chunk_task, cfg, ids, size, plan): ids for ids in chunks}
+    finished = ((futures[f], *f.result()) for f in concurrent.futures.as_completed(futures))
+    return finished, lambda: [f.cancel() for f in futures]
+
+
+def worker_table(records, n_steps: int):
+    """Per process that ran chunks: chunks, scenarios, busy seconds and scenario-steps per busy second."""
+    import pandas as pd
+
+    frame = pd.DataFrame(records, columns=["worker", "scenarios", "busy_s"])
+    table = frame.groupby("worker", sort=True).agg(chunks=("scenarios", "size"), scenarios=("scenarios", "sum"),
+                                                   busy_s=("busy_s", "sum")).reset_index()
+    table["scenario_steps_per_s"] = table["scenarios"] * n_steps / table["busy_s"]
+    return table
+
+
 def _part_damage(part: Path, setup: CampaignSetup, done: np.ndarray):
     """(table, None) for a sound part of this campaign, (None, what is wrong) for a damaged one.
 
@@ -326,16 +375,17 @@ def _part_damage(part: Path, setup: CampaignSetup, done: np.ndarray):
         df = io.read_checked_table(part)
     except ValueError as err:
         return None, f"unreadable: {err}"
-    missing = [c for c in ("scenario_id", *setup.cols) if c not in df.columns]
-    if missing:
-        return None, f"column {missing[0]} missing"
+    if "scenario_id" not in df.columns:
+        return None, "column scenario_id missing"
     ids = df["scenario_id"].to_numpy()
     if not len(ids) or ids.dtype.kind not in "iu" or ids.min() < 0 or ids.max() >= setup.n:
         return None, f"scenario ids outside 0..{setup.n - 1}"
     if part.name != _part_name(int(ids[0])) or len(np.unique(ids)) != len(ids) or done[ids].any():
         return None, "scenario ids repeated or not those of its name"
-    for column, values in setup.cols.items():
-        if not np.array_equal(df[column].to_numpy(), np.asarray(values)[ids]):
+    for column, values in build.design_chunk(setup.config, setup.plan, ids).items():
+        if column not in df.columns:
+            return None, f"column {column} missing"
+        if not np.array_equal(df[column].to_numpy(), np.asarray(values)):
             return None, f"column {column} differs from the campaign's design"
     return df, None
 
@@ -361,7 +411,7 @@ def _read_parts(parts_dir: Path, setup: CampaignSetup):
 
 
 def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, executor=None, on_chunk=None,
-                 title: str = "Campaign") -> CampaignResult:
+                 title: str = "Campaign", compile_cache=None) -> CampaignResult:
     """Simulate and score every scenario of a campaign.
 
     Args:
@@ -370,10 +420,15 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
             part each) and at the end; None runs in memory and writes nothing.
         resume: continue the campaign in ``out``, simulating only the scenarios not yet written.
         progress: a progress bar on stderr (rate, time left); False for silence.
-        executor: None to run chunks in this process, or a ``concurrent.futures.Executor`` to
-            which each chunk is submitted as a task (:func:`run_chunk`); the table is the same.
+        executor: None to run chunks in this process, a ``concurrent.futures.Executor`` or a
+            ``dask.distributed.Client`` (:func:`mcfdd.dask_cluster`) to which each chunk is
+            submitted as a task (:func:`run_chunk`); the table is the same. An exception or
+            Ctrl-C in the driver cancels the tasks not yet done; the parts written are kept.
         on_chunk: called with the (k,) ids of each chunk when it is done (e.g. to stop a run).
         title: heading of ``summary.md`` when ``out`` is given.
+        compile_cache: folder of JAX's persistent compilation cache, here and on Dask workers
+            (:func:`mcfdd.workflows.common.compile_cache`): None for the user's cache folder,
+            'off' for none. It does not change results.
 
     Returns:
         A :class:`CampaignResult`; ``.scenarios`` is bit for bit the table ``mcfdd campaign``
@@ -388,7 +443,7 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     """
     cfg = as_config(cfg, "campaign")
     if out is None:
-        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title)
+        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title, compile_cache)
     out = Path(out)
     _check_out(out, resume)
     with precision(cfg.campaign.precision):
@@ -399,16 +454,17 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
         raise OutputFolderError(f"out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for "
                                 f"it to end or choose another folder")
     try:
-        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title)
+        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
         lock.release()
 
 
-def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title) -> CampaignResult:
+def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
     """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
     import pandas as pd
 
     c = cfg.campaign
+    common.compile_cache(compile_cache)
     with precision(c.precision):
         setup = _setup_of(cfg)
         size = chunk_size(c.chunk_size, setup.n)
@@ -423,26 +479,28 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title) -> Camp
     note(design_line(cfg, n), progress)
     note(f"campaign: {n} scenarios of {c.duration_s} s ({c.n_steps} steps, {c.precision}), {len(todo)} to run in "
          f"{len(chunks)} chunk(s) of {size}", progress)
+    records = []
     with bar(len(todo), "scenarios", progress, unit="scen") as shown:
-        if executor is None:
-            finished = ((ids, run_chunk(cfg, ids, size)) for ids in chunks)
-        else:
-            futures = {executor.submit(run_chunk, cfg, ids, size): ids for ids in chunks}
-            finished = ((futures[f], f.result()) for f in concurrent.futures.as_completed(futures))
-        for ids, table in finished:
-            frame = pd.DataFrame(table)
-            if out is not None:
-                with _writing(out, "the parts written so far are kept; make room and continue with --resume"):
-                    io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
-            frames.append(frame)
-            labels.append(np.full(len(ids), int(ids[0])))
-            shown.update(len(ids))
-            if on_chunk is not None:
-                on_chunk(ids)
+        finished, cancel = _submit(executor, cfg, chunks, size, setup.plan, compile_cache)
+        try:
+            for ids, table, worker, seconds in finished:
+                frame = pd.DataFrame(table)
+                if out is not None:
+                    with _writing(out, "the parts written so far are kept; make room and continue with --resume"):
+                        io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
+                frames.append(frame)
+                labels.append(np.full(len(ids), int(ids[0])))
+                records.append((worker, len(ids), seconds))
+                shown.update(len(ids))
+                if on_chunk is not None:
+                    on_chunk(ids)
+        except BaseException:
+            cancel()
+            raise
     table = pd.concat(frames, ignore_index=True)
     order = np.argsort(table["scenario_id"].to_numpy(), kind="stable")
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
-                            len(todo))
+                            len(todo), worker_table(records, c.n_steps))
     if out is not None:
         with _writing(out, "every scenario part is written; make room and continue with --resume"):
             result.save(out, title)

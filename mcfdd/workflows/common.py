@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import os
+
 import numpy as np
 
 from mcfdd import config, io
@@ -38,6 +40,42 @@ def load_bank(fdd_cfg: config.FddConfig, dtype):
         return lpv.from_dict(data, dtype)
     except (OSError, ValueError, KeyError) as err:
         raise config.ConfigError(f"fdd.bank: cannot use {fdd_cfg.bank!r}: {err}") from None
+
+
+def default_compile_cache() -> Path:
+    """The user's cache folder for compiled programs: ``$XDG_CACHE_HOME/mcfdd/jax`` (default ``~/.cache``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "mcfdd" / "jax"
+
+
+def compile_cache(folder=None) -> Path | None:
+    """Keep JAX's compiled programs in ``folder`` (JAX's persistent compilation cache), or not.
+
+    A later process compiling the same program (a second run, another Dask worker on the host or
+    on a shared file system) loads it from there instead of compiling; results do not change.
+    Programs that compile in under a second are not kept (JAX's default). JAX trusts what it
+    finds there: the folder must be writable by its user only.
+
+    Args:
+        folder: a folder, None for :func:`default_compile_cache`, or 'off' to compile every time.
+
+    Returns:
+        The folder in use, or None when off.
+    """
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    path = None if folder == "off" else Path(folder or default_compile_cache()).expanduser()
+    if path is not None:
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise config.ConfigError(f"compile_cache: cannot use {str(path)!r}: {err.strerror}") from None
+    wanted = (str(path) if path is not None else jax.config.jax_compilation_cache_dir, path is not None)
+    if (jax.config.jax_compilation_cache_dir, jax.config.jax_enable_compilation_cache) != wanted:
+        compilation_cache.reset_cache()
+        jax.config.update("jax_compilation_cache_dir", wanted[0])
+        jax.config.update("jax_enable_compilation_cache", wanted[1])
+    return path
 
 
 def save_figure(fig, path: Path) -> Path:

@@ -1,0 +1,164 @@
+"""Campaign chunks on Dask distributed (the ``distributed`` extra): local cluster, existing scheduler, worker set-up.
+
+Dask runs the chunk tasks (:func:`mcfdd.workflows.campaign.run_chunk`) with its own retries: a
+task whose worker dies is run again elsewhere, and the driver writes each part as its result
+arrives, so the table is the same as in one process (tables do not depend on the device count,
+the chunk or the process). A Dask scheduler runs whatever task it is sent, so the local cluster
+listens on 127.0.0.1 only, a remote one should be reached over ``tls://``, and plain ``tcp://``
+to another host gives a warning.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import logging
+import os
+import socket
+import warnings
+from pathlib import Path
+
+from distributed import Client, LocalCluster, as_completed
+from distributed.comm.addressing import get_address_host, parse_address, parse_host_port
+from distributed.diagnostics.plugin import WorkerPlugin
+from distributed.security import Security
+
+from mcfdd import config, devices
+from mcfdd.workflows.common import compile_cache
+
+SCHEMES = ("tcp", "tls")
+PLUGIN = "mcfdd-worker-setup"
+
+
+class ClusterError(config.ConfigError):
+    """A cluster that cannot be used: a bad address, an unreachable scheduler, no workers, bad TLS files."""
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+    except (OSError, ValueError):
+        return False
+
+
+def check_address(address: str) -> str:
+    """``address`` if it is ``tcp://HOST:PORT`` or ``tls://HOST:PORT``; a warning for plain tcp to another host."""
+    try:
+        scheme, location = parse_address(address, strict=True)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError):
+        scheme = host = port = None
+    if scheme not in SCHEMES or not host or not port:
+        raise ClusterError(f"scheduler: {address!r} is not an address like tls://HOST:PORT or tcp://127.0.0.1:PORT")
+    if scheme == "tcp" and not _is_loopback(host):
+        warnings.warn(f"scheduler {address}: plain tcp:// to another host; anyone who reaches the scheduler can run "
+                      f"code on its workers: use tls:// or keep the cluster inside a trusted network (README, Beyond "
+                      f"one machine)", stacklevel=3)
+    return address
+
+
+def security(tls_ca_file=None, tls_cert=None, tls_key=None):
+    """Dask ``Security`` from TLS files (all three, like ``dask worker``'s flags), else Dask's own configuration."""
+    files = {"tls_ca_file": tls_ca_file, "tls_cert": tls_cert, "tls_key": tls_key}
+    given = {k: v for k, v in files.items() if v is not None}
+    if not given:
+        return Security()
+    if len(given) < len(files):
+        missing = ", ".join(f"--{k.replace('_', '-')}" for k in files if k not in given)
+        raise ClusterError(f"tls: {missing} missing; give the CA file, the certificate and its key together")
+    for key, path in given.items():
+        if not Path(path).is_file():
+            raise ClusterError(f"--{key.replace('_', '-')}: {path} is not a file")
+    return Security(tls_ca_file=tls_ca_file, tls_client_cert=tls_cert, tls_client_key=tls_key,
+                    require_encryption=True)
+
+
+@contextlib.contextmanager
+def dask_cluster(scheduler: str | None = None, workers: int | None = None, security=None, timeout_s: float = 10.0):
+    """A Dask client to pass as ``run_campaign(..., executor=client)``, closed on exit.
+
+    Args:
+        scheduler: address of a running scheduler (``tls://HOST:PORT``; ``tcp://`` on a trusted
+            network), or None for a local cluster.
+        workers: the local cluster's number of worker processes (one thread each, listening on
+            127.0.0.1 only), or None with ``scheduler``.
+        security: a ``distributed.Security`` (:func:`security`) for the scheduler; None: Dask's
+            configuration.
+        timeout_s: how long to try to reach the scheduler, and then to wait for a first worker.
+
+    Raises:
+        ClusterError: a bad address, an unreachable scheduler or one without workers, within
+            ``timeout_s``.
+    """
+    if (scheduler is None) == (workers is None):
+        raise ClusterError("cluster: give either a scheduler address or a number of local workers")
+    if workers is not None:
+        if workers < 1:
+            raise ClusterError(f"workers: {workers} is not allowed; expected a positive integer")
+        # The workers would inherit this process's device count; each gets its share of the cores instead.
+        env = {"XLA_FLAGS": devices.xla_flags(local_devices(workers))}
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None, silence_logs=logging.ERROR, env=env) as local, \
+                Client(local) as client:
+            yield client
+        return
+    address = check_address(scheduler)
+    try:
+        client = Client(address, security=security, timeout=timeout_s)
+    except (OSError, TimeoutError, TypeError, ValueError) as err:  # TypeError: tls:// without TLS settings
+        raise ClusterError(f"scheduler: cannot reach {address} within {timeout_s:g} s ({err})") from None
+    with client:
+        try:
+            client.wait_for_workers(1, timeout=timeout_s)
+        except TimeoutError:
+            raise ClusterError(f"scheduler: {address} has no workers after {timeout_s:g} s") from None
+        yield client
+
+
+def local_devices(threads: int) -> int:
+    """JAX devices of each process when ``threads`` worker threads share this host's cores."""
+    return max(1, (os.cpu_count() or 1) // max(threads, 1))
+
+
+class WorkerSetup(WorkerPlugin):
+    """Set-up of each worker process before its first chunk: its share of the host's cores, the compile cache.
+
+    Args:
+        cache: the compile-cache folder (:func:`mcfdd.workflows.common.compile_cache`; None is
+            the worker's own user cache folder, 'off' none).
+        host_threads: threads of all the cluster's workers per host; a worker gets
+            cores // threads JAX devices (one per core with one worker thread per host).
+    """
+
+    def __init__(self, cache, host_threads: dict):
+        self.cache, self.host_threads = cache, dict(host_threads)
+
+    def setup(self, worker):
+        threads = self.host_threads.get(get_address_host(worker.address), worker.state.nthreads)
+        devices.use_cores(local_devices(threads))
+        compile_cache(self.cache)
+
+
+def _host_threads(client) -> dict:
+    threads: dict = {}
+    for info in client.scheduler_info(n_workers=-1)["workers"].values():
+        threads[info["host"]] = threads.get(info["host"], 0) + info["nthreads"]
+    return threads
+
+
+def submit(client, task, cfg, chunks, size: int, plan, cache):
+    """Chunks of a campaign as tasks of ``client``: (results in completion order, cancel function).
+
+    The workers are set up first (:class:`WorkerSetup`, also on workers that join later); the
+    config and the design plan are sent once to every worker, each task carries only its ids.
+    A task whose worker dies is rescheduled by Dask; one that raises is retried twice.
+    """
+    client.register_plugin(WorkerSetup(cache, _host_threads(client)), name=PLUGIN)
+    shared_cfg, shared_plan = client.scatter([cfg, plan], broadcast=True, hash=False)
+    futures = {client.submit(task, shared_cfg, ids, size, shared_plan, pure=False, retries=2): ids for ids in chunks}
+
+    def results():
+        for future in as_completed(futures):
+            yield futures[future], *future.result()
+
+    return results(), lambda: client.cancel(list(futures))
