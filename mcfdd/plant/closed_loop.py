@@ -161,6 +161,7 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
     if isinstance(params, rcam_loop.RcamRunParams):
         return rcam_loop.step(params, state, t_s, noise, dt_s, substeps, kinds)
     act = params.actuator
+    noise = once(noise, params.one)  # the normals feed several fusions; drawn once
     pilot = once(manoeuvres.inputs(params.manoeuvre, t_s, kinds), params.one)
     gust_next, (v_gust, p_gust) = turbulence.step(params.turbulence, state.gust, noise[:3])
     max_delta = act.max_deflection_rad
