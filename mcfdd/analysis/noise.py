@@ -15,8 +15,9 @@ Normals: the top 23 bits m give ``v = (2 m + 1) 2^-23 - 1``, exactly, in (-1, 1)
 about 0 and never 0 or +-1, and ``z = sqrt(2) erfinv(v)``: the inverse-CDF transform, with
 XLA's float32 ``erf_inv`` (M. Giles, "Approximating the erfinv function", GPU Computing Gems
 Jade Edition, 2011: two polynomials in ``w = -log(1 - v^2)``). ``|z|`` reaches 5.3 at most,
-beyond which a normal has probability 1.2e-7. The cost is about 40 element-ops per normal,
-against threefry's about 100 (its 20 rounds per pair of words, plus the same transform).
+beyond which a normal has probability 1.2e-7. The compiled cost is about 65 element-ops per
+normal (hash and transform; ``benchmarks/campaign_throughput.py``), where threefry normals drawn
+in blocks cost about 245.
 """
 
 from __future__ import annotations
