@@ -3,32 +3,40 @@
 What is timed is :func:`mcfdd.analysis.campaign.run_batch` run the way ``mcfdd campaign`` runs it
 (:func:`mcfdd.run_campaign`): the scenarios of a realistic mixed space (``SPACE`` below: four fault
 kinds on a grid, four closed-loop manoeuvre families, turbulence, uncertainties, Latin hypercube
-over the rest) are split into chunks of
-``--chunk-size`` padded to a multiple of ``LANE_BLOCK`` scenarios per device, and each chunk's
-outcomes are brought back to host arrays. Scoring (``metrics.outcomes``) and Parquet writing are
-not timed. Every measurement runs in its own subprocess, so its peak resident memory
-(``ru_maxrss``) is its own.
+over the rest) set up by ``campaign_setup``, split into chunks of ``--chunk-size`` padded to a
+multiple of ``LANE_BLOCK`` scenarios per device by ``chunk_inputs``, each chunk's outcomes brought
+back to host arrays. Scoring and Parquet writing are not timed. Every measurement runs in its own
+subprocess, so its peak resident memory (``ru_maxrss``) and its start-up are its own.
 
-Rows, for 60 s at 100 Hz (6,000 steps), 1,000 / 10,000 / 100,000 scenarios, and 1,000 scenarios
-at 120 s (memory must not grow with the horizon: the scan carries reductions only):
+Per pipeline measurement (default 4,096 scenarios x 6,000 steps, one chunk):
 
-- compile (s): first call on the first chunk minus a timed second call on the same chunk
-  (``block_until_ready``);
-- run (s): the best of ``--repeats`` timed passes over all chunks, compilation excluded;
-- scenario-steps/s: real (unpadded) scenarios x steps / run;
-- peak RSS (MB): ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` of the measuring process.
+- start-up (s): from the subprocess's start (Python, imports, JAX) to the end of the first chunk
+  (compilation included; cold: no persistent compilation cache), and the number of XLA
+  compilations during ``campaign_setup`` (``CompileCounter``);
+- compile (s): first call on the first chunk minus a timed second call on the same chunk;
+- run (s): the best of ``--repeats`` timed passes over all chunks; scenario-steps/s counts real
+  scenarios;
+- from the compiled HLO of the device program (``device_batch`` on a small batch): fusions and
+  copies in the body of the step loop and element-ops per scenario-step (elementwise operations
+  executed per step, inside fusions or not, each weighted by its elements per scenario; a
+  reduction by its input's elements). A regression of the compute-once rule shows here.
 
-Peer, in the same run: the same pipeline as a Python ``for`` loop over time around ONE jitted,
-vmapped step (plant step + FDD step + reduction step over all scenarios), the state carried
-between steps in NumPy host arrays. Its outcomes are checked against ``run_batch`` on the same
-scenarios and steps.
+``--baseline PATH`` measures another checkout of mcfdd (a git worktree) as a peer in the same run:
+its package is imported first (``PYTHONPATH``) in its own subprocesses, alternating with this
+checkout's ``--rounds`` times. Ratios in one run are what counts on a shared machine.
 
-Breakdown, in the same run: one chunk of 20 s with the scan cut after each stage of the step
-(random numbers, + plant, + both FDD systems, + online reductions = the campaign's scan), so the
-differences between rows are what each stage costs.
+Peers, in the same run: the same pipeline as a Python ``for`` loop over time around ONE jitted,
+vmapped step with the state in NumPy host arrays (outcomes checked against ``run_batch``); and
+the machine's ceiling, a fused C kernel of a toy step of the same shape (``ceiling_kernel.c``,
+compiled here with gcc and OpenMP, called through ctypes), IEEE and ``-ffast-math``.
 
-    python benchmarks/campaign_throughput.py            # full run (about 7 min on 2 idle cores)
-    python benchmarks/campaign_throughput.py --quick    # 1,000 scenarios at 60 s and 120 s, peer
+Breakdown, in the same run: one chunk of 20 s, the scan cut after each stage of the step, each
+with its fusions and element-ops, and the campaign with its random numbers replaced by a
+constant (what the normals cost, the step's fusions unchanged).
+
+    python benchmarks/campaign_throughput.py                                  # 4,096 x 6,000 and the peers
+    python benchmarks/campaign_throughput.py --baseline /work/base-a96c20f    # and the revision before, same run
+    python benchmarks/campaign_throughput.py --scenarios 1024 --steps 2000 --no-peer --no-breakdown
 
 On a shared machine, ``--wait-quiet 600`` waits (up to 600 s) before each measurement until both
 cores have been idle for 10 s. The CPU/wall column (CPU time of the measuring process per second
@@ -38,30 +46,35 @@ of wall time) shows whether a measurement had the cores to itself: 2.0 on two id
 from __future__ import annotations
 
 import argparse
+import ctypes
 import hashlib
 import json
 import os
 import platform
+import re
 import resource
 import subprocess
 import sys
+import tempfile
 import time
+from collections import Counter
 from functools import partial
+from pathlib import Path
 
-import mcfdd  # first: one JAX CPU device per core, before JAX creates its backend
+START = time.time()  # the subprocess's start: start-up is measured from here
+
+import mcfdd  # noqa: E402  first: one JAX CPU device per core, before JAX creates its backend
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from jax.sharding import AxisType  # noqa: E402
-from jax.sharding import PartitionSpec as P  # noqa: E402
 
 from mcfdd import config, io  # noqa: E402
-from mcfdd.analysis import campaign, simulate  # noqa: E402
-from mcfdd.fdd import system  # noqa: E402
-from mcfdd.plant import closed_loop  # noqa: E402
+from mcfdd.analysis import campaign  # noqa: E402
 from mcfdd.workflows import campaign as campaign_runner  # noqa: E402
+from mcfdd.workflows.common import CompileCounter  # noqa: E402
 
+HERE = Path(__file__).resolve().parent
 SPACE = {
     "vcas_kt": [160.0, 350.0], "altitude_m": [0.0, 10000.0], "turbulence": ["light", "moderate"],
     "supply_pressure_scale": [0.95, 1.05], "kci_scale": [0.9, 1.1], "kd_scale": [0.7, 1.3],
@@ -71,12 +84,14 @@ SPACE = {
     "manoeuvre_kind": ["doublet", "bank_to_bank", "roll_protection", "sideslip"], "amplitude": [0.3, 1.0],
     "t_start_s": [5.0, 25.0], "duration_s": [1.0, 3.0], "hold_s": [1.0, 4.0], "sideslip_deg": [-6.0, 6.0],
 }
-GRID_CELLS = len(SPACE["fault_kind"])  # fault_kind is gridded: scenarios / 4 samples per fault kind
+GRID_CELLS = len(SPACE["fault_kind"])  # fault_kind is gridded: scenarios = samples x 4
+DT_S = 0.01
+HLO_BATCH, HLO_STEPS = 128, 600  # the small batch whose compiled program is counted
 
 
 def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
-        raise SystemExit(f"scenario counts must be multiples of {GRID_CELLS} (fault kinds on a grid)")
+        raise SystemExit(f"--scenarios: must be a multiple of {GRID_CELLS} (fault kinds on a grid)")
     return mcfdd.load_config({
         "campaign": {"scenarios": n_scenarios, "design": "lhs", "grid": ["fault_kind"], "seed": 1,
                      "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
@@ -87,20 +102,21 @@ def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> con
 class Problem:
     """The campaign of :func:`campaign_config` set up as ``run_campaign`` sets it up, and its chunks."""
 
-    def __init__(self, n_scenarios: int, duration_s: float, chunk_size: int):
-        cfg = campaign_config(n_scenarios, duration_s, chunk_size)
+    def __init__(self, n_scenarios: int, n_steps: int, chunk_size: int):
+        cfg = campaign_config(n_scenarios, n_steps * DT_S, chunk_size)
         self.c = cfg.campaign
         start = time.perf_counter()
-        self.setup = campaign_runner.campaign_setup(cfg)
-        self.setup_s = time.perf_counter() - start
+        with CompileCounter() as compiles:
+            self.setup = campaign_runner.campaign_setup(cfg)
+        self.setup_s, self.setup_compiles = time.perf_counter() - start, compiles.count
         self.n = self.setup.n
         assert self.n == n_scenarios, (self.n, n_scenarios)
         self.size = campaign_runner.chunk_size(self.c.chunk_size, self.n)
         self.chunks = [np.arange(i, min(i + self.size, self.n)) for i in range(0, self.n, self.size)]
 
-    def inputs(self, ids):
+    def inputs(self, ids, size=None):
         """Padded scenarios, truths and keys of a chunk, as ``run_campaign`` builds them."""
-        return campaign_runner.chunk_inputs(self.setup, self.c.seed, ids, self.size)
+        return campaign_runner.chunk_inputs(self.setup, self.c.seed, ids, size or self.size)
 
     def run_chunk(self, ids, n_steps=None):
         """One chunk as ``run_campaign`` runs it: gather, pad, run_batch, outcomes back to host arrays."""
@@ -109,11 +125,140 @@ class Problem:
                                  c.substeps, s.kinds)
         return {k: np.asarray(v)[:len(ids)] for k, v in jax.block_until_ready(raw).items()}
 
+    def device_program(self):
+        """Optimised HLO text of ``device_batch`` on HLO_BATCH scenarios x HLO_STEPS steps."""
+        s, c = self.setup, self.c
+        args = self.inputs(self.chunks[0][:HLO_BATCH], HLO_BATCH)
+        return campaign.device_batch.lower(s.model, s.fdd_params, s.settings, *args, HLO_STEPS, c.dt_s, c.substeps,
+                                           s.kinds).compile().as_text()
+
+
+# --- counting the compiled program -------------------------------------------------------------
+
+ELEMENTWISE = frozenset("""abs add and atan2 cbrt ceil clamp compare convert cosine divide erf exponential
+exponential-minus-one floor is-finite log log-plus-one logistic maximum minimum multiply negate not or popcnt power
+remainder round-nearest-afz round-nearest-even rsqrt select shift-left shift-right-arithmetic shift-right-logical
+sign sine sqrt subtract tan tanh xor""".split())
+_INSTRUCTION = re.compile(r"^\s*(?:ROOT )?%(\S+) = (.*)$")
+
+
+def _split_shape(text: str):
+    """(result shape, rest) of the right-hand side of an HLO instruction."""
+    if text.startswith("("):
+        depth = 0
+        for i, ch in enumerate(text):
+            depth += (ch == "(") - (ch == ")")
+            if depth == 0:
+                return text[:i + 1], text[i + 2:]
+    shape, _, rest = text.partition(" ")
+    return shape, rest
+
+
+def _elements(shape: str) -> int:
+    m = re.match(r"\w+\[([\d,]*)\]", shape)
+    return int(np.prod([int(d) for d in m.group(1).split(",") if d])) if m else 0
+
+
+def parse_hlo(text: str) -> dict:
+    """Computation name -> its instructions (dicts of name, shape, op, called computations, trip count)."""
+    comps, current = {}, None
+    for line in text.splitlines():
+        if line and not line.startswith(" ") and line.endswith("{"):
+            words = line.split()
+            current = (words[1] if words[0] == "ENTRY" else words[0]).lstrip("%")
+            comps[current] = []
+        elif line.startswith("}"):
+            current = None
+        elif current is not None and (m := _INSTRUCTION.match(line)):
+            shape, rest = _split_shape(m.group(2))
+            trip = re.search(r'"known_trip_count":\{"n":"(\d+)"', rest)
+            comps[current].append({
+                "shape": shape, "op": rest.split("(", 1)[0], "rest": rest,
+                "calls": re.findall(r"(?:calls|to_apply)=%([\w.\-]+)", rest),
+                "body": (re.search(r"body=%([\w.\-]+)", rest) or [None, None])[1],
+                "trip": int(trip.group(1)) if trip else 1})
+    return comps
+
+
+def _ops(comps: dict, name: str, batch: int, loops: bool) -> float:
+    """Element-ops per scenario of one execution of computation ``name`` (nested loops x their trip counts)."""
+    total = 0.0
+    for ins in comps[name]:
+        if ins["op"] in ELEMENTWISE:
+            total += _elements(ins["shape"]) / batch
+        elif ins["op"] in ("reduce", "reduce-window"):
+            total += _elements(ins["rest"].split("(", 1)[1]) / batch
+        elif ins["op"] == "fusion":
+            total += _ops(comps, ins["calls"][0], batch, loops)
+        elif ins["op"] == "while" and loops:
+            total += ins["trip"] * _ops(comps, ins["body"], batch, loops)
+    return total
+
+
+def step_loop(comps: dict) -> dict:
+    """The while instruction of the step loop: the one carrying the most arrays, or the loop nested in it
+    that carries nearly as many (the steps of a block of random numbers, at the revision before)."""
+    def arrays(ins):
+        return ins["shape"].count("[")
+
+    loop = max((ins for body in comps.values() for ins in body if ins["op"] == "while"), key=arrays)
+    while True:
+        inner = [ins for ins in comps[loop["body"]] if ins["op"] == "while" and arrays(ins) >= 0.8 * arrays(loop)]
+        if not inner:
+            return loop
+        loop = max(inner, key=arrays)
+
+
+def hlo_stats(text: str, batch: int, n_steps: int) -> dict:
+    """Fusions, copies and element-ops per scenario-step of the step loop of a compiled campaign program.
+
+    The step loop (:func:`step_loop`) carries plant, FDD and reduction states. ``element_ops`` counts one pass of its body per scenario; ``element_ops_total`` the
+    whole program (set-up, random numbers drawn outside the step loop, ...) per scenario-step.
+    """
+    comps = parse_hlo(text)
+    step = step_loop(comps)
+    entry = re.search(r"^ENTRY %?([\w.\-]+)", text, re.M).group(1)
+    ops = Counter(ins["op"] for ins in comps[step["body"]])
+    return {"fusions": ops["fusion"], "copies": ops["copy"],
+            "element_ops": _ops(comps, step["body"], batch, loops=False),
+            "element_ops_total": _ops(comps, entry, batch, loops=True) / n_steps}
+
+
+def barrier_check() -> list[dict]:
+    """Fusions and element-ops of a toy scan step: shared work plain, behind an optimization barrier, once.
+
+    The step carries three values that all use one shared expression (several cheap elementwise
+    operations). XLA CPU fuses the shared expression into each carried value's loop; the
+    optimisation barrier does not survive to fusion; :func:`mcfdd.compute.once` does.
+    """
+    from mcfdd.compute import once
+
+    def program(mode):
+        def run(x, one):
+            def body(c, _):
+                a, b, d = c
+                shared = jnp.clip(a * 1.1 + b * 0.3, -1.0, 1.0) * (a - b) + jnp.abs(a) * jnp.minimum(b, 0.5)
+                if mode == "barrier":
+                    shared = jax.lax.optimization_barrier(shared)
+                elif mode == "once":
+                    shared = once(shared, one)
+                return (a + 0.01 * shared, b - 0.02 * shared, jnp.maximum(d, shared)), None
+            return jax.lax.scan(body, (x, 0.5 * x, x), None, length=100)[0]
+        return jax.jit(jax.vmap(run, in_axes=(0, None)))
+
+    rows = []
+    for mode in ("plain", "barrier", "once"):
+        text = program(mode).lower(jnp.zeros(256, jnp.float32), jnp.float32(1.0)).compile().as_text()
+        stats = hlo_stats(text, 256, 100)
+        rows.append({"variant": mode, "fusions": stats["fusions"], "element_ops": stats["element_ops"],
+                     "barrier_in_optimised_hlo": "opt-barrier" in text})
+    return rows
+
+
+# --- measurements, each in its own subprocess --------------------------------------------------
 
 def source_digest() -> str:
     """Short digest of the package's Python sources: which code a measurement ran."""
-    from pathlib import Path
-
     digest = hashlib.sha1()
     root = Path(mcfdd.__file__).parent
     for path in sorted(root.rglob("*.py")):
@@ -130,93 +275,72 @@ def _peak_rss_mb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB on Linux
 
 
-def measure_pipeline(n_scenarios: int, duration_s: float, chunk_size: int, repeats: int) -> dict:
-    p = Problem(n_scenarios, duration_s, chunk_size)
+def measure_pipeline(n_scenarios: int, n_steps: int, chunk_size: int, repeats: int) -> dict:
+    p = Problem(n_scenarios, n_steps, chunk_size)
     rss_before = _peak_rss_mb()
     start = time.perf_counter()
     p.run_chunk(p.chunks[0])
     first = time.perf_counter() - start
+    startup = time.time() - START
     start = time.perf_counter()
     p.run_chunk(p.chunks[0])
     second = time.perf_counter() - start
     passes = []
     for _ in range(repeats):
-        chunk_times = []
         cpu0, start = _cpu_s(), time.perf_counter()
         for ids in p.chunks:
-            t0 = time.perf_counter()
             p.run_chunk(ids)
-            chunk_times.append(time.perf_counter() - t0)
         wall = time.perf_counter() - start
-        passes.append({"run_s": wall, "chunk_s": chunk_times, "cpu_per_wall": (_cpu_s() - cpu0) / wall})
+        passes.append({"run_s": wall, "cpu_per_wall": (_cpu_s() - cpu0) / wall})
     best = min(passes, key=lambda r: r["run_s"])
-    steps = p.c.n_steps
-    fastest = max(len(ids) / t for r in passes for ids, t in zip(p.chunks, r["chunk_s"])) * steps
+    peak = _peak_rss_mb()
     return {
-        "kind": "pipeline", "scenarios": p.n, "duration_s": duration_s, "steps": steps, "devices": jax.device_count(),
-        "chunk": p.size, "chunks": len(p.chunks), "setup_s": p.setup_s, "first_call_s": first,
+        "kind": "pipeline", "scenarios": p.n, "steps": n_steps, "devices": jax.device_count(), "chunk": p.size,
+        "chunks": len(p.chunks), "setup_s": p.setup_s, "setup_compiles": p.setup_compiles, "startup_s": startup,
         "compile_s": first - second, "run_s": best["run_s"], "all_runs_s": [r["run_s"] for r in passes],
-        "chunk_s_mean": float(np.mean(best["chunk_s"])), "cpu_per_wall": best["cpu_per_wall"],
-        "throughput": p.n * steps / best["run_s"], "fastest_chunk_throughput": fastest,
-        "rss_before_mb": rss_before, "peak_rss_mb": _peak_rss_mb(),
+        "cpu_per_wall": best["cpu_per_wall"], "throughput": p.n * n_steps / best["run_s"],
+        "rss_before_mb": rss_before, "peak_rss_mb": peak, **hlo_stats(p.device_program(), HLO_BATCH, HLO_STEPS),
     }
 
 
-def split(fn, specs):
-    """``jit`` of ``fn`` (vmapped over scenarios) split over all devices with ``shard_map`` (the peer's way).
-
-    ``run_batch`` instead runs the single-device program on each device's share
-    (``campaign.on_devices``), which keeps results independent of the device count.
-    """
-    mesh = jax.make_mesh((jax.device_count(),), ("batch",), axis_types=(AxisType.Auto,))
-    return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=specs, out_specs=P("batch"), check_vma=False))
-
-
 def peer_functions(p: Problem, n_steps: int):
-    """Jitted pieces of the Python-loop peer: init, one batched step, a noise block, finalize.
+    """Jitted pieces of the Python-loop peer: init, one batched step (noise drawn inside), finalize."""
+    from mcfdd.analysis import noise
+    from mcfdd.plant import closed_loop
 
-    The step is ``campaign.step_one``, the body of ``campaign.run_one``, vmapped over scenarios
-    and, with several devices, split over them with ``shard_map`` inside the step's jit.
-    """
-    s = p.setup
-    model, fdd_params, settings, kinds = s.model, s.fdd_params, s.settings, s.kinds
-    dt_s, substeps = p.c.dt_s, p.c.substeps
+    kinds, dt_s, substeps = p.setup.kinds, p.c.dt_s, p.c.substeps
 
-    def init_one(scenario, key):
+    def init_one(model, fdd_params, scenario, key):
         return campaign.init_one(model, fdd_params, scenario, key, dt_s)
 
-    def step_one(params, scenario, truth, carry, k, noise):
-        return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, noise, dt_s, substeps,
+    def step_one(fdd_params, settings, params, scenario, truth, carry, key, k):
+        normals = noise.normals(noise.key_words(key), k, closed_loop.NOISE_DIM)
+        return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, normals, dt_s, substeps,
                                  kinds)[0]
 
-    def noise_one(key, b):
-        return jax.random.normal(jax.random.fold_in(key, b), (simulate.NOISE_BLOCK, closed_loop.NOISE_DIM))
-
-    def finalize_one(red):
+    def finalize_one(settings, red):
         return campaign.finalize(settings, red, n_steps * dt_s)
 
-    b = P("batch")
-    init = split(jax.vmap(init_one), (b, b))
-    step = split(jax.vmap(step_one, in_axes=(0, 0, 0, 0, None, 0)), (b, b, b, b, P(), b))
-    noise = split(jax.vmap(noise_one, in_axes=(0, None)), (b, P()))
-    finalize = split(jax.vmap(finalize_one), (b,))
-    return init, step, noise, finalize
+    def split(fn, batched):
+        """Parameters are arguments (not closed over), as in run_batch, so ``compute.once`` stays in effect."""
+        return partial(campaign.on_devices, jax.jit(jax.vmap(fn, in_axes=tuple(0 if b else None for b in batched))),
+                       batched=batched)
+
+    init = split(init_one, (False, False, True, True))
+    step = split(step_one, (False, False, True, True, True, True, True, False))
+    finalize = split(finalize_one, (False, True))
+    return init, step, finalize
 
 
-def run_peer(p: Problem, fns, ids, n_steps: int, host_state: bool = True):
-    """Python loop over time; the state goes back to NumPy arrays after every step if ``host_state``."""
-    init, step, noise, finalize = fns
+def run_peer(p: Problem, fns, ids, n_steps: int):
+    """Python loop over time; the state goes back to NumPy host arrays after every step."""
+    init, step, finalize = fns
+    s = p.setup
     scen, truth, keys = p.inputs(ids)
-    params, carry = init(scen, keys)
-    to_host = (lambda tree: jax.tree.map(np.asarray, tree)) if host_state else (lambda tree: tree)
-    carry = to_host(carry)
-    block = None
+    params, carry = init(s.model, s.fdd_params, scen, keys)
     for k in range(n_steps):
-        j = k % simulate.NOISE_BLOCK
-        if j == 0:
-            block = np.asarray(noise(keys, np.uint32(k // simulate.NOISE_BLOCK)))
-        carry = to_host(step(params, scen, truth, carry, np.int32(k), block[:, j]))
-    out = finalize(carry[2])
+        carry = step(s.fdd_params, s.settings, params, scen, truth, carry, keys, np.int32(k))
+    out = finalize(s.settings, carry[2])
     return {k: np.asarray(v)[:len(ids)] for k, v in out.items()}
 
 
@@ -238,93 +362,153 @@ def compare(a: dict, b: dict) -> dict:
 
 
 def measure_peer(n_scenarios: int, n_steps: int, repeats: int) -> dict:
-    p = Problem(n_scenarios, n_steps * 0.01, n_scenarios)
+    p = Problem(n_scenarios, n_steps, n_scenarios)
     ids = p.chunks[0]
     fns = peer_functions(p, n_steps)
-    result = {"kind": "peer", "scenarios": p.n, "steps": n_steps, "devices": jax.device_count(), "chunk": p.size}
-    for label, host in (("host", True), ("device", False)):
-        start = time.perf_counter()
-        run_peer(p, fns, ids, 1, host)  # compiles init, step, noise and finalize
-        first_one_step = time.perf_counter() - start
-        start = time.perf_counter()
-        run_peer(p, fns, ids, 1, host)
-        one_step = time.perf_counter() - start
-        runs = []
-        for _ in range(repeats):
-            cpu0, start = _cpu_s(), time.perf_counter()
-            out = run_peer(p, fns, ids, n_steps, host)
-            wall = time.perf_counter() - start
-            runs.append((wall, (_cpu_s() - cpu0) / wall))
-        wall, cpu = min(runs)
-        result[label] = {"compile_s": first_one_step - one_step, "run_s": wall, "all_runs_s": [r[0] for r in runs],
-                         "cpu_per_wall": cpu, "throughput": p.n * n_steps / wall, "step_ms": 1e3 * wall / n_steps}
-        if host:
-            peer_out = out
-    reference = p.run_chunk(ids, n_steps)
-    result["check"] = compare(reference, peer_out)
-    result["peak_rss_mb"] = _peak_rss_mb()
-    return result
+    start = time.perf_counter()
+    run_peer(p, fns, ids, 1)  # compiles init, step and finalize
+    first_one_step = time.perf_counter() - start
+    start = time.perf_counter()
+    run_peer(p, fns, ids, 1)
+    one_step = time.perf_counter() - start
+    runs = []
+    for _ in range(repeats):
+        cpu0, start = _cpu_s(), time.perf_counter()
+        out = run_peer(p, fns, ids, n_steps)
+        wall = time.perf_counter() - start
+        runs.append((wall, (_cpu_s() - cpu0) / wall))
+    wall, cpu = min(runs)
+    return {"kind": "peer", "scenarios": p.n, "steps": n_steps, "devices": jax.device_count(),
+            "compile_s": first_one_step - one_step, "run_s": wall, "cpu_per_wall": cpu,
+            "throughput": p.n * n_steps / wall, "step_ms": 1e3 * wall / n_steps,
+            "check": compare(p.run_chunk(ids, n_steps), out), "peak_rss_mb": _peak_rss_mb()}
 
 
-STAGES = ("random numbers", "+ plant", "+ both FDD systems", "+ online reductions (the campaign)")
+STAGES = ("random numbers", "+ plant", "+ both FDD systems", "+ online reductions (the campaign)",
+          "the campaign, random numbers replaced by a constant")
 
 
-def measure_breakdown(n_scenarios: int, duration_s: float, repeats: int) -> dict:
-    """Run time of the campaign scan cut after each stage of its step, on one chunk.
+def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
+    """Run time, fusions and element-ops of the campaign scan cut after each stage of its step, on one chunk.
 
-    Each cut keeps a cheap running sum of the last stage's outputs in the carry so that XLA cannot
-    drop the stage; the last row is ``run_batch`` itself. The differences between rows are what
-    each stage adds.
+    Each cut keeps a running sum of its last stage's outputs in the carry so that XLA cannot
+    drop the stage; the fourth row is the campaign's step (``campaign.step_one``) in the same
+    scan; the last is that step fed a constant instead of the normals (the random numbers'
+    cost, by ablation: the rest of the step compiles to the same fusions).
     """
-    p = Problem(n_scenarios, duration_s, n_scenarios)
+    from mcfdd.analysis import noise
+    from mcfdd.fdd import system
+    from mcfdd.plant import closed_loop
+
+    p = Problem(n_scenarios, n_steps, n_scenarios)
     s, c = p.setup, p.c
     scen, truth, keys = p.inputs(p.chunks[0])
 
-    def cut(stage, scenario, key):
-        params, (plant_state, fdd_state, _) = campaign.init_one(s.model, s.fdd_params, scenario, key, c.dt_s)
+    def cut(stage, model, fdd_params, settings, scenario, truth, key):
+        params, carry = campaign.init_one(model, fdd_params, scenario, key, c.dt_s)
+        words = noise.key_words(key)
 
-        def body(state, k, noise):
-            plant_state, fdd_state, acc = state
+        def body(state, k):
+            (plant_state, fdd_state, red), acc = state
+            draws = (jnp.full(closed_loop.NOISE_DIM, 0.5, params.qbar_pa.dtype) if stage == 4 else
+                     noise.normals(words, k, closed_loop.NOISE_DIM, params.qbar_pa.dtype))
             if stage == 0:
-                return (plant_state, fdd_state, acc + noise.sum()), None
+                return ((plant_state, fdd_state, red), acc + draws.sum()), None
+            if stage >= 3:
+                carry, _, _ = campaign.step_one(params, fdd_params, settings, scenario, truth,
+                                                (plant_state, fdd_state, red), k, draws, c.dt_s, c.substeps, s.kinds)
+                return (carry, acc), None
             t = k * c.dt_s
-            plant_state, out = closed_loop.step(params, plant_state, t, noise, c.dt_s, c.substeps, s.kinds)
+            plant_state, out = closed_loop.step(params, plant_state, t, draws, c.dt_s, c.substeps, s.kinds)
             if stage == 1:
-                return (plant_state, fdd_state, acc + out.u_m), None
-            fdd_state, fo = system.step(s.fdd_params, fdd_state, out.u_c_m, out.u_m, scenario.vcas_m_s,
-                                        scenario.altitude_m, t, c.dt_s)
+                return ((plant_state, fdd_state, red), acc + out.u_m), None
+            fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
+                                        t, c.dt_s)
             sink = fo.theta.sum() + fo.theta_stall + fo.detected + fo.eta_signal + fo.eta_model
-            return (plant_state, fdd_state, acc + sink), None
+            return ((plant_state, fdd_state, red), acc + sink), None
 
         zero = jnp.zeros((), params.qbar_pa.dtype)
-        return simulate.scan_steps(body, (plant_state, fdd_state, zero), key, c.n_steps, closed_loop.NOISE_DIM)[0][2]
+        (carry, acc), _ = jax.lax.scan(body, (carry, zero), jnp.arange(n_steps))
+        return acc if stage < 3 else campaign.finalize(settings, carry[2], n_steps * c.dt_s)
 
-    runs = [partial(campaign.on_devices, jax.jit(jax.vmap(partial(cut, stage))), scen, keys, batched=(True, True))
-            for stage in range(3)]
-    runs.append(partial(campaign.run_batch, s.model, s.fdd_params, s.settings, scen, truth, keys, c.n_steps, c.dt_s,
-                        c.substeps, s.kinds))
     rows = []
-    for name, run in zip(STAGES, runs):
+    params = (s.model, s.fdd_params, s.settings)  # arguments, as in run_batch: compute.once stays in effect
+    for stage, name in enumerate(STAGES):
+        fn = jax.jit(jax.vmap(partial(cut, stage), in_axes=(None, None, None, 0, 0, 0)),
+                     compiler_options=campaign.XLA_CPU_OPTIONS)
+        run = partial(campaign.on_devices, fn, *params, scen, truth, keys, batched=(False,) * 3 + (True,) * 3)
+        small = jax.tree.map(lambda x: x[:HLO_BATCH], (scen, truth, keys))
+        stats = hlo_stats(fn.lower(*params, *small).compile().as_text(), HLO_BATCH, n_steps)
         jax.block_until_ready(run())
         times = []
         for _ in range(repeats):
             start = time.perf_counter()
             jax.block_until_ready(run())
             times.append(time.perf_counter() - start)
-        rows.append({"stage": name, "run_s": min(times), "throughput": p.size * c.n_steps / min(times)})
-    return {"kind": "breakdown", "scenarios": p.size, "steps": c.n_steps, "devices": jax.device_count(), "rows": rows}
+        rows.append({"stage": name, "run_s": min(times), "throughput": p.size * n_steps / min(times), **stats})
+    return {"kind": "breakdown", "scenarios": p.size, "steps": n_steps, "devices": jax.device_count(), "rows": rows}
+
+
+def ceiling_inputs(n: int, seed: int = 0) -> dict:
+    """Per-scenario inputs of the C toy step: realistic ranges, LPV coefficients of the default bank."""
+    from mcfdd.fdd import lpv
+
+    rng = np.random.default_rng(seed)
+    bank, _ = lpv.from_dict(io.load_bank_dict(None), np.float32)
+    vcas, alt = rng.uniform(82.0, 180.0, n), rng.uniform(0.0, 10000.0, n)
+    basis = np.stack([np.ones(n), (vcas - bank.norm.vcas_ref_m_s) / bank.norm.vcas_scale_m_s,
+                      (alt - bank.norm.altitude_ref_m) / bank.norm.altitude_scale_m])  # (3, n)
+    coef = np.einsum("ijm,mn->ijn", np.asarray(bank.coef, np.float64), basis)  # (NM, 4, n)
+    f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+    return {
+        "amp": f32(rng.uniform(0.3, 1.0, n)), "t0": f32(rng.uniform(5.0, 25.0, n)), "dur": f32(rng.uniform(1.0, 3.0, n)),
+        "kp_law": f32(rng.uniform(0.3, 0.6, n)), "ki_law": f32(rng.uniform(0.5, 1.0, n)),
+        "load0": f32(rng.uniform(-3e3, 3e3, n)), "slope": f32(rng.uniform(-6e4, -2e4, n)),
+        "lp": f32(rng.uniform(-2.0, -1.0, n)), "lda": f32(rng.uniform(3.0, 6.0, n)),
+        "gust_a": f32(rng.uniform(0.98, 0.999, n)), "gust_b": f32(rng.uniform(0.001, 0.01, n)),
+        "coef": f32(coef), "k0": f32(bank.k0), "keys": np.ascontiguousarray(rng.integers(0, 2**32, (2, n)), np.uint32),
+    }
+
+
+def measure_ceiling(n_scenarios: int, n_steps: int, repeats: int, fast_math: bool) -> dict:
+    """The fused C toy step (``ceiling_kernel.c``) on n scenarios x n steps, OpenMP over the cores."""
+    flags = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno"] + (["-ffast-math"] if fast_math else [])
+    with tempfile.TemporaryDirectory() as tmp:
+        lib_path = Path(tmp) / "ceiling.so"
+        subprocess.run(["gcc", *flags, "-shared", "-fPIC", "-o", str(lib_path), str(HERE / "ceiling_kernel.c"), "-lm"],
+                       check=True)
+        lib = ctypes.CDLL(str(lib_path))
+    x = ceiling_inputs(n_scenarios)
+    outs = {"ratio_max": np.zeros((6, n_scenarios), np.float32), "det_time": np.zeros(n_scenarios, np.float32),
+            "stall_max": np.zeros(n_scenarios, np.float32)}
+    ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)  # noqa: E731
+    args = [ptr(x[k]) for k in ("amp", "t0", "dur", "kp_law", "ki_law", "load0", "slope", "lp", "lda", "gust_a",
+                                "gust_b", "coef", "k0", "keys")] + [ptr(v) for v in outs.values()]
+    lib.run.restype = None
+    times = []
+    for _ in range(repeats + 1):
+        cpu0, start = _cpu_s(), time.perf_counter()
+        lib.run(ctypes.c_int(n_scenarios), ctypes.c_int(n_steps), *args)
+        times.append((time.perf_counter() - start, _cpu_s() - cpu0))
+    wall, cpu = min(times[1:])
+    return {"kind": "ceiling", "fast_math": fast_math, "flags": " ".join(flags), "scenarios": n_scenarios,
+            "steps": n_steps, "threads": int(os.environ.get("OMP_NUM_THREADS", os.cpu_count())), "run_s": wall,
+            "cpu_per_wall": cpu / wall, "throughput": n_scenarios * n_steps / wall,
+            "finite": bool(np.isfinite(outs["stall_max"]).all())}
 
 
 def worker(spec: dict) -> dict:
     assert not jax.config.jax_enable_x64, "the benchmark measures float32"
-    digest = source_digest()
-    if spec["kind"] == "pipeline":
-        result = measure_pipeline(spec["scenarios"], spec["duration_s"], spec["chunk_size"], spec["repeats"])
-    elif spec["kind"] == "breakdown":
-        result = measure_breakdown(spec["scenarios"], spec["duration_s"], spec["repeats"])
+    kind = spec["kind"]
+    if kind == "pipeline":
+        result = measure_pipeline(spec["scenarios"], spec["steps"], spec["chunk_size"], spec["repeats"])
+    elif kind == "breakdown":
+        result = measure_breakdown(spec["scenarios"], spec["steps"], spec["repeats"])
+    elif kind == "ceiling":
+        result = measure_ceiling(spec["scenarios"], spec["steps"], spec["repeats"], spec["fast_math"])
     else:
         result = measure_peer(spec["scenarios"], spec["steps"], spec["repeats"])
-    return {**result, "source": digest}
+    return {**result, "source": source_digest(), "package": str(Path(mcfdd.__file__).parent)}
 
 
 def _idle_fraction(seconds: float) -> float:
@@ -355,12 +539,15 @@ def wait_quiet(max_wait_s: float):
             return
 
 
-def spawn(spec: dict, max_wait_s: float = 0.0) -> dict:
-    """Run one measurement in a fresh process (so ru_maxrss is its own); returns its result."""
+def spawn(spec: dict, max_wait_s: float = 0.0, checkout: Path | None = None) -> dict:
+    """Run one measurement in a fresh process; ``checkout``: import that checkout's mcfdd instead."""
     wait_quiet(max_wait_s)
     load = os.getloadavg()
+    env = dict(os.environ, OMP_NUM_THREADS=str(os.cpu_count()))
+    if checkout is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(checkout)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     proc = subprocess.run([sys.executable, __file__, "--worker", json.dumps(spec)], capture_output=True, text=True,
-                          check=False)
+                          check=False, env=env)
     if proc.returncode:
         sys.stderr.write(proc.stderr)
         raise SystemExit(f"measurement {spec} failed")
@@ -369,14 +556,27 @@ def spawn(spec: dict, max_wait_s: float = 0.0) -> dict:
     return result
 
 
+def _pipeline_line(label: str, r: dict) -> str:
+    return (f"| {label} | {r['compile_s']:.1f} | {r['run_s']:.2f} | {r['throughput']:.3g} | {r['cpu_per_wall']:.2f} | "
+            f"{r['fusions']} | {r['copies']} | {r['element_ops']:.0f} | {r['element_ops_total']:.0f} | "
+            f"{r['startup_s']:.1f} | {r['setup_compiles']} | {r['peak_rss_mb']:.0f} |")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="1,000 scenarios only (60 s and 120 s) and the peer")
-    parser.add_argument("--sizes", type=int, nargs="+", help="scenario counts at 60 s (default 1000 10000 100000)")
-    parser.add_argument("--chunk-size", type=int, default=2048, help="scenarios per chunk, as campaign.chunk_size")
+    parser.add_argument("--scenarios", type=int, default=4096, help="scenarios of the pipeline (default 4096)")
+    parser.add_argument("--steps", type=int, default=6000, help="steps of 0.01 s (default 6000: 60 s)")
+    parser.add_argument("--chunk-size", type=int, default=4096, help="scenarios per chunk, as campaign.chunk_size")
     parser.add_argument("--repeats", type=int, default=2, help="timed passes per measurement; the best is reported")
-    parser.add_argument("--peer-scenarios", type=int, default=1000)
+    parser.add_argument("--baseline", type=Path, help="another checkout of mcfdd, measured in the same run")
+    parser.add_argument("--rounds", type=int, default=2, help="with --baseline: alternating measurements of each")
+    parser.add_argument("--peer-scenarios", type=int, default=1024)
     parser.add_argument("--peer-steps", type=int, default=600)
+    parser.add_argument("--no-peer", action="store_true", help="skip the Python-loop peer")
+    parser.add_argument("--no-breakdown", action="store_true", help="skip the stage breakdown")
+    parser.add_argument("--no-ceiling", action="store_true", help="skip the C kernel")
+    parser.add_argument("--barrier-check", action="store_true",
+                        help="only show what optimization_barrier and mcfdd.compute.once do to a toy step's fusions")
     parser.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
                         help="before each measurement wait up to S seconds for idle cores (shared machines)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -384,59 +584,74 @@ def main(argv=None):
     if args.worker:
         print(json.dumps(worker(json.loads(args.worker))), flush=True)
         return
-    sizes = args.sizes or ([1000] if args.quick else [1000, 10000, 100000])
+    if args.barrier_check:
+        print("| toy step | fusions per step | element-ops per scenario-step | opt-barrier in optimised HLO |")
+        print("|---|---:|---:|---|")
+        for r in barrier_check():
+            print(f"| {r['variant']} | {r['fusions']} | {r['element_ops']:.0f} | {r['barrier_in_optimised_hlo']} |")
+        return
+    if args.baseline is not None and not (args.baseline / "mcfdd" / "__init__.py").is_file():
+        raise SystemExit(f"--baseline: {args.baseline} holds no mcfdd package")
     print(f"jax {jax.__version__}, {jax.device_count()} {jax.devices()[0].platform} device(s) "
           f"({os.cpu_count()} cores, XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}), "
-          f"{platform.processor() or platform.machine()}, float32, dt 0.01 s, 4 actuator sub-steps, "
-          f"chunks of {args.chunk_size} padded to {campaign_runner.LANE_BLOCK} x devices, best of {args.repeats}")
+          f"{platform.processor() or platform.machine()}, float32, dt {DT_S} s, {args.scenarios:,} scenarios x "
+          f"{args.steps:,} steps in chunks of {args.chunk_size}, best of {args.repeats}")
     print(f"mcfdd {io.git_revision()}, sources {source_digest()}")
     print(f"load average before start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
-    specs = [{"kind": "pipeline", "scenarios": n, "duration_s": 60.0, "chunk_size": args.chunk_size,
-              "repeats": args.repeats} for n in sizes]
-    specs.append({"kind": "pipeline", "scenarios": sizes[0], "duration_s": 120.0, "chunk_size": args.chunk_size,
-                  "repeats": args.repeats})
-    rows = []
-    for spec in specs:
-        r = spawn(spec, args.wait_quiet)
-        rows.append(r)
-        print(f"  {r['scenarios']:,} x {r['steps']:,}: compile {r['compile_s']:.1f} s, runs "
-              f"{', '.join(f'{t:.2f}' for t in r['all_runs_s'])} s ({r['chunks']} chunk(s) of {r['chunk']}, "
-              f"{r['chunk_s_mean']:.2f} s each, fastest chunk {r['fastest_chunk_throughput']:.3g} scenario-steps/s), "
-              f"CPU/wall {r['cpu_per_wall']:.2f}, setup {r['setup_s']:.1f} s, "
-              f"RSS before run {r['rss_before_mb']:.0f} MB, load before {r['load_before'][0]:.2f}", flush=True)
-    peer = spawn({"kind": "peer", "scenarios": args.peer_scenarios, "steps": args.peer_steps,
-                  "repeats": args.repeats}, args.wait_quiet)
-    parts = spawn({"kind": "breakdown", "scenarios": args.chunk_size, "duration_s": 20.0, "repeats": args.repeats + 1},
-                  args.wait_quiet)
+    spec = {"kind": "pipeline", "scenarios": args.scenarios, "steps": args.steps, "chunk_size": args.chunk_size,
+            "repeats": args.repeats}
+    checkouts = [("this", None)] + ([("baseline", args.baseline.resolve())] if args.baseline else [])
+    results = {label: [] for label, _ in checkouts}
+    for _ in range(args.rounds if args.baseline else 1):
+        for label, checkout in checkouts:
+            r = spawn(spec, args.wait_quiet, checkout)
+            results[label].append(r)
+            print(f"  {label} ({r['package']}, sources {r['source']}): compile {r['compile_s']:.1f} s, runs "
+                  f"{', '.join(f'{t:.2f}' for t in r['all_runs_s'])} s, CPU/wall {r['cpu_per_wall']:.2f}, "
+                  f"start-up {r['startup_s']:.1f} s (set-up {r['setup_s']:.1f} s, {r['setup_compiles']} compiles), "
+                  f"load before {r['load_before'][0]:.2f}", flush=True)
+    best = {label: max(rs, key=lambda r: r["throughput"]) for label, rs in results.items()}
+    peer = None if args.no_peer else spawn({"kind": "peer", "scenarios": args.peer_scenarios,
+                                            "steps": args.peer_steps, "repeats": args.repeats}, args.wait_quiet)
+    ceilings = [] if args.no_ceiling else [
+        spawn({"kind": "ceiling", "scenarios": args.scenarios, "steps": args.steps, "repeats": args.repeats,
+               "fast_math": fast}, args.wait_quiet) for fast in (False, True)]
+    parts = None if args.no_breakdown else spawn({"kind": "breakdown", "scenarios": args.chunk_size, "steps": 2000,
+                                                  "repeats": args.repeats + 1}, args.wait_quiet)
     print()
-    print("| scenarios | horizon | steps | devices | compile (s) | run (s) | scenario-steps/s | CPU/wall | "
-          "peak RSS (MB) |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for r in rows:
-        print(f"| {r['scenarios']:,} | {r['duration_s']:.0f} s | {r['steps']:,} | {r['devices']} | "
-              f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['throughput']:.3g} | {r['cpu_per_wall']:.2f} | "
-              f"{r['peak_rss_mb']:.0f} |")
+    print("| pipeline | compile (s) | run (s) | scenario-steps/s | CPU/wall | fusions per step | copies per step | "
+          "element-ops per scenario-step (step loop) | (whole program) | start-up to first chunk (s) | "
+          "compiles in set-up | peak RSS (MB) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for label, r in best.items():
+        print(_pipeline_line(label, r))
+    this = best["this"]["throughput"]
     print()
-    for label, name in (("host", "python loop over time, jitted vectorised step, state in NumPy host arrays"),
-                        ("device", "same loop, state left in device arrays")):
-        q = peer[label]
-        print(f"peer ({name}): {peer['scenarios']:,} scenarios x {peer['steps']:,} steps on {peer['devices']} "
-              f"device(s): compile {q['compile_s']:.1f} s, run {q['run_s']:.2f} s ({q['step_ms']:.2f} ms per step), "
-              f"{q['throughput']:.3g} scenario-steps/s, CPU/wall {q['cpu_per_wall']:.2f}")
-    chk = peer["check"]
-    print(f"peer outcomes vs run_batch on the same {peer['scenarios']:,} scenarios x {peer['steps']} steps: "
-          f"{chk['scenarios_differing']} scenario(s) differ, largest relative difference {chk['max_rel_diff']:.2g}")
-    print()
-    print(f"where the time goes ({parts['scenarios']:,} scenarios x {parts['steps']:,} steps, the scan cut after "
-          f"each stage of the step):")
-    print("| stage | run (s) | scenario-steps/s |")
-    print("|---|---:|---:|")
-    for r in parts["rows"]:
-        print(f"| {r['stage']} | {r['run_s']:.3f} | {r['throughput']:.3g} |")
-    base = rows[0]["throughput"]
-    print(f"pipeline / peer (host state): {base / peer['host']['throughput']:.0f}x;  aim 3e7 scenario-steps/s: "
-          f"{max(r['throughput'] for r in rows) / 3e7:.2f} of it")
-    digests = {r["source"] for r in rows + [peer, parts]}
+    if "baseline" in best:
+        print(f"this / baseline: {this / best['baseline']['throughput']:.2f}x (best of {args.rounds} alternating "
+              f"measurements each)")
+    print(f"aim 2e7 scenario-steps/s: {this / 2e7:.2f} of it;  1e8: {this / 1e8:.2f} of it")
+    if peer is not None:
+        chk = peer["check"]
+        print(f"peer (python loop over time, jitted vectorised step, state in NumPy host arrays): "
+              f"{peer['scenarios']:,} x {peer['steps']:,} steps, compile {peer['compile_s']:.1f} s, run "
+              f"{peer['run_s']:.2f} s ({peer['step_ms']:.2f} ms per step), {peer['throughput']:.3g} scenario-steps/s, "
+              f"CPU/wall {peer['cpu_per_wall']:.2f}; outcomes vs run_batch: {chk['scenarios_differing']} scenario(s) "
+              f"differ, largest relative difference {chk['max_rel_diff']:.2g};  pipeline / peer: "
+              f"{this / peer['throughput']:.0f}x")
+    for c in ceilings:
+        print(f"ceiling (fused C toy step, {c['flags']}, {c['threads']} threads): {c['run_s']:.2f} s, "
+              f"{c['throughput']:.3g} scenario-steps/s, CPU/wall {c['cpu_per_wall']:.2f};  pipeline / ceiling: "
+              f"{this / c['throughput']:.2f}")
+    if parts is not None:
+        print()
+        print(f"where the time goes ({parts['scenarios']:,} scenarios x {parts['steps']:,} steps):")
+        print("| stage | run (s) | scenario-steps/s | fusions per step | element-ops per scenario-step |")
+        print("|---|---:|---:|---:|---:|")
+        for r in parts["rows"]:
+            print(f"| {r['stage']} | {r['run_s']:.3f} | {r['throughput']:.3g} | {r['fusions']} | "
+                  f"{r['element_ops']:.0f} |")
+    digests = {r["source"] for r in results["this"] + [x for x in [peer, parts] if x]}
     if len(digests) > 1:
         print(f"WARNING: the package sources changed during the run ({', '.join(sorted(digests))})")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")

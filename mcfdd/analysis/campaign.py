@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcfdd.analysis.simulate import scan_steps
+from mcfdd.compute import ONE, once
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
@@ -71,6 +72,7 @@ class Settings(NamedTuple):
     stall_min_duration_s: float
     stall_min_error_m: float
     stall_window_s: float
+    one: float = ONE  # a runtime 1.0 for :func:`mcfdd.compute.once`
 
 
 class Truth(NamedTuple):
@@ -205,7 +207,7 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     fault_model = fdd.detected >= 1
     new_fid = quiet & fault_model & ~jnp.isfinite(red.fid_time)
     new_id = in_window & fault_model & ~jnp.isfinite(red.id_time)
-    ratio = fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0)
+    ratio = once(fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0), s.one)
     pre = quiet & fdd.excited
     post = in_window & fdd.excited
     others_min = jnp.min(jnp.where(truth.accept, jnp.inf, ratio))
@@ -313,7 +315,13 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
     return finalize(settings, red, n_steps * dt_s)
 
 
-@partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
+# XLA CPU options of the campaign program (per function, not global flags): AVX-512-wide vectors
+# where the CPU has them, and no YNNPACK library fusions (the step has no dot or reduction large
+# enough to gain from them). Measured faster with bit-identical outcomes (benchmarks/RESULTS.md).
+XLA_CPU_OPTIONS = {"xla_cpu_prefer_vector_width": 512, "xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+@partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"), compiler_options=XLA_CPU_OPTIONS)
 def device_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
                  kinds: tuple[int, ...]) -> dict:
     """:func:`run_one` over a batch (leading axis of scenarios, truths and keys), one jit, on one device."""

@@ -1,7 +1,8 @@
 """Full time histories of a few runs: the closed-loop plant in one jitted, vmapped scan.
 
-Random numbers: run ``i`` of a batch draws from ``fold_in(key(seed), i)`` and step ``k`` from
-``fold_in(run_key, k)``, so a run's signals do not depend on the batch it is simulated in.
+Random numbers: run ``i`` of a batch has the key ``fold_in(key(seed), i)``, and step ``k`` draws
+counter-based normals keyed by that key and k (:mod:`mcfdd.analysis.noise`), so a run's signals
+do not depend on the batch it is simulated in.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
+from mcfdd.analysis import noise
 from mcfdd.fdd import system
 from mcfdd.plant import closed_loop
 
@@ -21,29 +23,20 @@ def run_keys(seed: int, indices):
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices, dtype=jnp.uint32))
 
 
-NOISE_BLOCK = 100
-
-
 def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1):
     """``lax.scan`` of ``body(carry, k, noise) -> (carry, y)`` over steps k = 0 .. n_steps - 1.
 
-    The standard normals of step k (``dim`` of them) are row ``k % NOISE_BLOCK`` of
-    ``normal(fold_in(key, k // NOISE_BLOCK), (NOISE_BLOCK, dim))``: drawn a block at a time, which
-    is much faster than per step, and independent of the horizon and of the batch. Returns
-    (final carry, stacked y with leading axis n_steps).
+    The ``dim`` standard normals of step k are :func:`mcfdd.analysis.noise.normals` of the run
+    key's words and k: counter-based, drawn inside the step, independent of the horizon and of
+    the batch. Returns (final carry, stacked y with leading axis n_steps).
     """
-    def block(carry, b, length):
-        noise = jax.random.normal(jax.random.fold_in(key, b), (NOISE_BLOCK, dim))[:length]
-        ks = b * NOISE_BLOCK + jnp.arange(length)
-        return jax.lax.scan(lambda c, x: body(c, x[0], x[1]), carry, (ks, noise), unroll=unroll)
+    words = noise.key_words(key)
+    dtype = jnp.result_type(float)
 
-    n_blocks, rest = divmod(n_steps, NOISE_BLOCK)
-    carry, ys = jax.lax.scan(lambda c, b: block(c, b, NOISE_BLOCK), carry, jnp.arange(n_blocks))
-    ys = jax.tree.map(lambda y: y.reshape((n_blocks * NOISE_BLOCK,) + y.shape[2:]), ys)
-    if rest:
-        carry, tail = block(carry, n_blocks, rest)
-        ys = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), ys, tail)
-    return carry, ys
+    def one(c, k):
+        return body(c, k, noise.normals(words, k, dim, dtype))
+
+    return jax.lax.scan(one, carry, jnp.arange(n_steps), unroll=unroll)
 
 
 def plant_history(model: closed_loop.PlantModel, scenario: closed_loop.Scenario, key, n_steps: int,

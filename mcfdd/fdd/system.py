@@ -34,6 +34,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import ONE, once
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, thresholds
 
 
@@ -63,6 +64,7 @@ class StallParams(NamedTuple):
 class FddParams(NamedTuple):
     loe: LoeParams
     stall: StallParams
+    one: float = ONE  # a runtime 1.0 for :func:`mcfdd.compute.once`
 
 
 class FddState(NamedTuple):
@@ -136,22 +138,24 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     loe, stl = params.loe, params.stall
     bank = loe.bank
     direction = jnp.sign(u_c - u)
-    k = lpv.gains(bank, u, direction, vcas_m_s, altitude_m)
+    k = once(lpv.gains(bank, u, direction, vcas_m_s, altitude_m), params.one)
 
     load = load_fraction(bank, k)
     valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
     running = valid & state.was_valid
     bank_xq = jnp.where(running, state.bank_xq, residual.init(u))
     bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
+    r = once(r, params.one)
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
+    theta = once(theta, params.one)
     band = jnp.where(running, state.band, decision.excitation_init(u))
     band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
-    band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
+    band_xi, theta_u = once(evaluator.step(loe.evaluator, state.band_xi, bp, dt_s), params.one)
     tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
     excited = theta_u >= loe.excitation_floor
-    stall_xq, r_stall = residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s)
-    stall_xi, theta_stall = evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s)
+    stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
+    stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
     signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s, dt_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)

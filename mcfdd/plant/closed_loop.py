@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import ONE, once
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, rcam_loop, turbulence
 from mcfdd.plant.signals import PlantOutputs
 
@@ -59,6 +60,7 @@ class PlantModel(NamedTuple):
     aircraft: aircraft.AircraftParams
     law: control_law.RollLawParams
     table: hinge.HingeTable
+    one: float = ONE  # a runtime 1.0 for :func:`mcfdd.compute.once`
 
 
 class RunParams(NamedTuple):
@@ -77,6 +79,7 @@ class RunParams(NamedTuple):
     noise_std_m: jnp.ndarray
     vcas_m_s: jnp.ndarray
     altitude_m: jnp.ndarray
+    one: jnp.ndarray
 
 
 class PlantState(NamedTuple):
@@ -136,6 +139,7 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
         noise_std_m=jnp.asarray(scenario.noise_std_m),
         vcas_m_s=jnp.asarray(scenario.vcas_m_s),
         altitude_m=jnp.asarray(scenario.altitude_m),
+        one=jnp.asarray(model.one),
     )
 
 
@@ -157,16 +161,18 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
     if isinstance(params, rcam_loop.RcamRunParams):
         return rcam_loop.step(params, state, t_s, noise, dt_s, substeps, kinds)
     act = params.actuator
-    pilot = manoeuvres.inputs(params.manoeuvre, t_s, kinds)
+    noise = once(noise, params.one)  # the normals feed several fusions; drawn once
+    pilot = once(manoeuvres.inputs(params.manoeuvre, t_s, kinds), params.one)
     gust_next, (v_gust, p_gust) = turbulence.step(params.turbulence, state.gust, noise[:3])
     max_delta = act.max_deflection_rad
     p_cmd = control_law.roll_rate_demand(params.law, pilot.stick, state.roll.phi_rad)
     integrator, delta_c = control_law.step(params.law, params.gains, state.integrator, p_cmd,
                                            state.roll.p_rad_s, max_delta, dt_s)
-    delta_c = jnp.where(pilot.open_loop, jnp.clip(pilot.command, -1.0, 1.0) * max_delta, delta_c)
+    delta_c = once(jnp.where(pilot.open_loop, jnp.clip(pilot.command, -1.0, 1.0) * max_delta, delta_c), params.one)
     u_c = delta_c * act.r_arm_m
     act_state, out = actuator.step(act, params.fault, params.delta_grid_rad, params.load_slice_n,
                                    state.actuator, u_c, t_s, dt_s, substeps)
+    out = once(out, params.one)
     delta = out.x_m / act.r_arm_m
     delta_eff = aircraft.effective_aileron(params.aircraft, delta, delta_c, out.nu2)
     roll = aircraft.step(params.aircraft, state.roll, delta_eff, pilot.sideslip_rad, p_gust, v_gust,

@@ -1,0 +1,38 @@
+"""Compute once: a quantity of a step evaluated once per step by XLA CPU (DESIGN.md section 2).
+
+XLA's CPU backend has no multi-output fusion. Every array a step carries or returns is the root
+of its own loop fusion, and the cheap elementwise work several roots depend on (pilot inputs,
+control law, scheduled gains, ...) is duplicated into each of them: the campaign step compiled
+to about 90 fusions that executed three times the element-ops of its jaxpr. XLA does not
+duplicate an operation it counts as expensive, and a floating-point division is one; so
+:func:`once` divides a shared quantity by a 1.0 that is known only at run time (a leaf of the
+parameters, an argument of the jitted function, so XLA can neither fold nor simplify it). The
+quantity is then computed in one fusion, stored, and read by every user. The division is exact
+(x / 1 == x for every float, inf and nan included): results do not change.
+
+``jax.lax.optimization_barrier`` would express the same intent, but XLA's CPU pipeline removes
+it before fusion, so it has no effect there (``benchmarks/campaign_throughput.py --barrier-check``).
+When the 1.0 is a compile-time constant (parameters closed over instead of passed) XLA folds the
+division away: results are the same, only the duplication returns.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+ONE = 1.0  # the default of the ``one`` leaves of the parameters (PlantModel, FddParams)
+
+
+def once(tree, one):
+    """``tree`` with its floating-point leaves divided by ``one`` (a runtime 1.0): computed once.
+
+    Integer and boolean leaves pass unchanged (XLA duplicates a mask's conversion to float and
+    back as readily as the mask itself). ``one`` is a scalar leaf of the step's parameters.
+    """
+    def leaf(x):
+        x = jnp.asarray(x)
+        return x / one.astype(x.dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x
+
+    one = jnp.asarray(one)
+    return jax.tree.map(leaf, tree)

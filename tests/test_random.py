@@ -1,0 +1,102 @@
+"""Counter-based normals (mcfdd.analysis.noise): distribution, independence, keying by (seed, scenario, step)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.special
+import scipy.stats
+
+from mcfdd.analysis import noise, simulate
+from mcfdd.plant import closed_loop
+
+N_SCENARIOS, N_STEPS, DIM = 256, 200, closed_loop.NOISE_DIM
+
+
+@pytest.fixture(scope="module")
+def draws():
+    """(scenarios, steps, dim) float32 normals of seed 3, as a campaign's steps draw them."""
+    keys = simulate.run_keys(3, np.arange(N_SCENARIOS))
+
+    def run(key):
+        words = noise.key_words(key)
+        return jax.vmap(lambda k: noise.normals(words, k, DIM, jnp.float32))(jnp.arange(N_STEPS))
+
+    out = np.asarray(jax.jit(jax.vmap(run))(keys))
+    assert out.dtype == np.float32
+    return out
+
+
+def test_moments_are_those_of_a_standard_normal(draws):
+    z = draws.astype(np.float64).ravel()
+    n = z.size
+    assert abs(z.mean()) < 4.0 / np.sqrt(n)
+    assert abs(z.var() - 1.0) < 4.0 * np.sqrt(2.0 / n)
+    assert abs(scipy.stats.skew(z)) < 4.0 * np.sqrt(6.0 / n)
+    assert abs(scipy.stats.kurtosis(z)) < 4.0 * np.sqrt(24.0 / n)
+
+
+@pytest.mark.parametrize("level", [1.0, 2.0, 3.0, 4.0])
+def test_tail_frequencies_match_the_normal(draws, level):
+    z = draws.ravel()
+    expected = 2.0 * scipy.stats.norm.sf(level)
+    count = int((np.abs(z) > level).sum())
+    lo, hi = scipy.stats.binom.interval(1.0 - 1e-6, z.size, expected)
+    assert lo <= count <= hi, (level, count, expected * z.size)
+
+
+def test_kolmogorov_smirnov_against_the_normal(draws):
+    assert scipy.stats.kstest(draws.ravel(), "norm").pvalue > 1e-3
+    for j in range(DIM):  # every component of a step on its own
+        assert scipy.stats.kstest(draws[:, :, j].ravel(), "norm").pvalue > 1e-3
+
+
+def test_no_correlation_between_neighbouring_scenarios_steps_and_components(draws):
+    def corr(a, b):
+        return float(np.corrcoef(a.ravel(), b.ravel())[0, 1])
+
+    bound = 4.5 / np.sqrt(draws[1:].size)
+    assert abs(corr(draws[1:], draws[:-1])) < bound  # scenario s and s + 1, same step
+    assert abs(corr(draws[:, 1:], draws[:, :-1])) < bound  # step k and k + 1, same scenario
+    assert abs(corr(draws[..., 1:], draws[..., :-1])) < bound  # component j and j + 1
+    assert abs(corr(draws[:, 1:, 0], draws[:, :-1, -1])) < bound  # last of step k, first of step k + 1
+    assert abs(corr(draws[1:, :, 0] ** 2, draws[:-1, :, 0] ** 2)) < bound  # nor in magnitude
+
+
+def test_a_scenarios_numbers_depend_on_seed_scenario_and_step_only():
+    def normals(seed, ids, steps):
+        keys = simulate.run_keys(seed, ids)
+        return np.asarray(jax.vmap(lambda key: jax.vmap(
+            lambda k: noise.normals(noise.key_words(key), k, DIM, jnp.float32))(jnp.asarray(steps)))(keys))
+
+    whole = normals(5, np.arange(64), np.arange(50))
+    alone = normals(5, np.array([17]), np.arange(50))
+    np.testing.assert_array_equal(alone[0], whole[17])  # the batch it is in does not matter
+    np.testing.assert_array_equal(normals(5, np.array([17]), np.arange(20, 50))[0], whole[17, 20:])  # nor the start
+    assert not np.any(normals(6, np.array([17]), np.arange(50))[0] == whole[17])  # another seed: other numbers
+
+
+def test_scan_steps_feeds_step_k_its_own_normals():
+    key = simulate.run_keys(2, [9])[0]
+
+    def body(c, k, z):
+        return c, (k, z)
+
+    _, (ks, zs) = simulate.scan_steps(body, 0.0, key, 30, DIM)
+    expected = np.stack([np.asarray(noise.normals(noise.key_words(key), k, DIM, zs.dtype)) for k in range(30)])
+    np.testing.assert_array_equal(np.asarray(ks), np.arange(30))
+    np.testing.assert_array_equal(np.asarray(zs), expected)
+
+
+def test_transform_is_the_normal_quantile_to_float32_accuracy():
+    bits = np.concatenate([np.array([0, 1, 2**31 - 1, 2**31, 2**32 - 1], dtype=np.uint32),
+                           np.random.default_rng(0).integers(0, 2**32, 100_000, dtype=np.uint32)])
+    z = np.asarray(noise.to_normal(jnp.asarray(bits), jnp.float32)).astype(np.float64)
+    m = (bits >> 9).astype(np.float64)
+    reference = scipy.special.ndtri((2.0 * m + 1.0) / 2.0**24)  # the quantile of the midpoint of cell m
+    assert np.all(np.isfinite(z))
+    np.testing.assert_allclose(z, reference, rtol=2e-5, atol=2e-6)
+    assert z[0] == -z[4] and abs(z[0]) < 5.4  # symmetric; the largest normal it can give
+    assert np.all(z != 0.0)
