@@ -30,9 +30,10 @@ from mcfdd.workflows import cluster as dask_cluster
 distributed = pytest.importorskip("distributed")
 
 SPACE = {"vcas_kt": [150.0, 350.0], "altitude_m": [0.0, 9000.0], "fault_kind": ["none", "leakage"],
-         "leakage_size": [0.1, 0.4], "manoeuvre_kind": ["quiet", "doublet"]}
+         "leakage_size": [0.1, 0.4], "manoeuvre_kind": ["quiet", "doublet"], "fault_onset_s": 0.2, "t_start_s": 0.1}
+EVALUATION = {"settle_s": 0.0}
 CAMPAIGN = {"scenarios": 384, "duration_s": 0.5, "chunk_size": 128, "seed": 5, "design": "sobol"}
-CFG = mcfdd.load_config({"campaign": CAMPAIGN, "space": SPACE}, "campaign")
+CFG = mcfdd.load_config({"campaign": CAMPAIGN, "space": SPACE, "evaluation": EVALUATION}, "campaign")
 LOE_CAMPAIGN = str(Path(__file__).resolve().parent.parent / "configs" / "loe_campaign.toml")
 
 
@@ -65,7 +66,8 @@ def test_design_rows_built_by_index_are_the_rows_of_the_whole_design():
     grid_mach = {"vcas_kt": {"values": [250.0, 420.0]}, "altitude_m": [0.0, 11000.0], "kd_scale": [0.8, 1.2]}
     for campaign, space in (({"design": "lhs", "grid": ["fault_kind"]}, SPACE), ({"design": "random"}, SPACE),
                             ({"design": "sobol", "grid": ["vcas_kt"]}, grid_mach)):
-        cfg = mcfdd.load_config({"campaign": {"scenarios": 60, "seed": 2, **campaign}, "space": space}, "campaign")
+        cfg = mcfdd.load_config({"campaign": {"scenarios": 60, "seed": 2, **campaign}, "space": space,
+                                 "evaluation": EVALUATION}, "campaign")
         cols, n = build.design(cfg)
         plan = build.design_plan(cfg)
         ids = rng.permutation(n)[:17]  # not consecutive, any order
@@ -120,7 +122,8 @@ def test_local_cluster_listens_on_loopback_only(local):
 
 
 def test_a_worker_killed_with_a_chunk_in_hand_leaves_the_table_identical(local):
-    cfg = mcfdd.load_config({"campaign": {**CAMPAIGN, "scenarios": 640}, "space": SPACE}, "campaign")  # 5 chunks
+    cfg = mcfdd.load_config({"campaign": {**CAMPAIGN, "scenarios": 640}, "space": SPACE, "evaluation": EVALUATION},
+                            "campaign")  # 5 chunks
     reference = mcfdd.run_campaign(cfg, progress=False).scenarios
     pids = local.run(os.getpid)
     killed = []
@@ -180,7 +183,7 @@ def hand_started(tmp_path):
 
 def test_scheduler_and_workers_started_by_hand_give_the_in_process_table(hand_started, reference, tmp_path, capsys):
     config_file = tmp_path / "campaign.toml"
-    config_file.write_text(tomli_w.dumps({"campaign": CAMPAIGN, "space": SPACE}))
+    config_file.write_text(tomli_w.dumps({"campaign": CAMPAIGN, "space": SPACE, "evaluation": EVALUATION}))
     out = tmp_path / "out"
     assert cli.main(["campaign", str(config_file), "--out", str(out), "--scheduler", hand_started]) == 0
     assert "workers: " in capsys.readouterr().out
@@ -263,7 +266,7 @@ print(len(hits))
 
 
 def test_a_second_process_loads_the_compiled_program_from_the_cache_with_the_same_table(tmp_path):
-    small = {"campaign": {**CAMPAIGN, "scenarios": 128}, "space": SPACE}
+    small = {"campaign": {**CAMPAIGN, "scenarios": 128}, "space": SPACE, "evaluation": EVALUATION}
     reference = mcfdd.run_campaign(mcfdd.load_config(small, "campaign"), progress=False, compile_cache="off")
     folder = tmp_path / "cache"
     one_device = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=1"}  # one compile, not two
