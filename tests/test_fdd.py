@@ -337,27 +337,46 @@ def test_evaluator_parameters_each_matter():
 # Decisions, eqs. (15) and (25)
 
 
-def test_excitation_band_pass_is_zoh_cascade():
-    """excitation_step = ZOH of k0/(s+k0) (model rod), then ZOH of a/(s+a) on the held error u_c - rod,
-    to 1e-12; in the limit T -> 0 the band-pass a/(s+a) * s/(s+k0)."""
-    a, k0, u_c0 = 1.5, 24.0, 0.01
-    u_c = u_c0 + np.cumsum(np.random.default_rng(6).normal(0.0, 1e-3, 500))
+def test_excitation_is_the_low_passed_tracking_error():
+    """excitation_step = ZOH of a/(s+a) on the held measured tracking error u_c - u, to 1e-12."""
+    a = 1.5
+    rng = np.random.default_rng(6)
+    u_c = 0.01 + np.cumsum(rng.normal(0.0, 1e-3, 500))
+    u = u_c - rng.normal(0.0, 2e-3, 500)
 
-    def body(state, c):
-        return decision.excitation_step(state, c, a, k0, DT_S)
+    def body(state, inp):
+        return decision.excitation_step(state, inp[0], inp[1], a, DT_S)
 
-    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(u_c0), x)[1])(u_c))
-    rod = u_c0 + zoh_response([k0], [1.0, k0], u_c - u_c0)  # at rest at u_c0: deviations start from zero
-    ref = zoh_response([a], [1.0, a], u_c - rod)
-    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c)))
-    assert np.max(np.abs(ref)) > 0.01 * np.ptp(u_c)
-    # On a smooth command, the continuous band-pass times the lag of the sampled error (the error is
-    # read as a new command is applied, T / (1 - exp(-k0 T)) behind instead of 1/k0), as in the bank's residuals.
-    smooth = smooth_command(500, 0.0)
-    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(0.0), x)[1])(smooth))
-    band = sig.lsim(([a, 0.0], [1.0, a + k0, a * k0]), smooth, np.arange(smooth.size) * DT_S, interp=False)[1]
-    band *= k0 * DT_S / (1.0 - math.exp(-k0 * DT_S))
-    assert np.max(np.abs(out - band)) < 0.02 * np.max(np.abs(band))
+    out = np.asarray(jax.jit(lambda x, m: jax.lax.scan(body, decision.excitation_init(m[0]), (x, m))[1])(u_c, u))
+    ref = zoh_response([a], [1.0, a], u_c - u)
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c - u)))
+    assert np.max(np.abs(ref)) > 0.1 * np.std(u_c - u)
+
+
+@pytest.mark.parametrize("plant_k", [17.0, 30.0], ids=["slower", "faster"])
+def test_ratio_is_the_relative_gain_mismatch_at_every_sample(plant_k):
+    """On a ZOH-sampled first-order plant of gain k_j with the filters' gains frozen, filter i's residual
+    is the excitation low-pass times (exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T)) at every sample
+    from a start at rest, through the transient of a step and the manoeuvre after it, so theta_i / ||u||
+    is that constant (about |k_j - k_i| / k0_i) whenever ||u|| > 0, whatever the command."""
+    a, n = 0.5, 800
+    k, k0 = FROZEN_K, np.array([24.0, 18.0, 10.0])
+    u_c = np.where(np.arange(n) >= 50, 3.0, 0.0) * DEG_M + np.where(np.arange(n) >= 400, smooth_command(n, 0.0), 0.0)
+    phi_j = math.exp(-plant_k * DT_S)
+    u = [0.0]
+    for c in u_c[:-1]:
+        u.append(phi_j * u[-1] + (1.0 - phi_j) * c)
+    u = np.array(u)
+    r = np.asarray(run_residual(np.zeros(3), u, u_c, np.broadcast_to(k, (n, 3)), k0, a))
+    band = zoh_response([a], [1.0, a], u_c - u)
+    scale = (np.exp(-k * DT_S) - phi_j) / -np.expm1(-k0 * DT_S)
+    np.testing.assert_allclose(r, band[:, None] * scale, rtol=0, atol=1e-12 * np.max(np.abs(r)))
+    params = evaluator.NarendraParams(0.0, 1.0, 1.0)
+    theta, theta_u = np.asarray(run_evaluator(params, r)), np.asarray(run_evaluator(params, band))
+    moving = theta_u > 1e-6 * theta_u.max()
+    np.testing.assert_allclose(theta[moving] / theta_u[moving, None], np.broadcast_to(np.abs(scale), theta[moving].shape),
+                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.abs(scale), np.abs(plant_k - k) / k0, rtol=0.15, atol=1e-12)
 
 
 def test_gated_filters_restart_from_equilibrium(bank):

@@ -20,27 +20,26 @@ NO_DECISION = -1
 
 
 def excitation_init(u0):
-    """State of the band-pass in equilibrium with the measured position u0: (model rod, output) = (u0, 0).
+    """State of the low-pass in equilibrium (output 0) at measured position u0.
 
-    Also the restart of the band-pass while residual evaluation is suspended (see
+    Also the restart of the low-pass while residual evaluation is suspended (see
     :func:`mcfdd.fdd.system.step`), so that it leaves no transient of a gated interval behind.
     """
-    u0 = jnp.asarray(u0)
-    return jnp.stack([u0, jnp.zeros_like(u0)])
+    return jnp.zeros_like(jnp.asarray(u0))
 
 
-def excitation_step(state, u_c, a, k0, dt_s: float):
-    """Band-passed command ``a/(s+a) * s/(s+k0) u_c``. Returns (new state, output).
+def excitation_step(state, u_c, u, a, dt_s: float):
+    """Low-passed measured tracking error ``a/(s+a) (u_c - u)``, exact for the error held over the
+    sample. Returns (new state, output).
 
-    Realised as the tracking error ``u_c - m`` of a first-order model rod ``m' = k0 (u_c - m)``
-    (exact for u_c held over the sample), low-passed by ``a/(s+a)`` (exact for the error held):
-    the same signal, ``a/(s+a) (u_c - u)`` on a plant of gain k0, that drives every residual of
-    the bank, so a restart with ``m = u`` matches a restart of the bank's filters.
+    Filter i of the bank is driven by the same error: on a sampled first-order plant of gain k_j,
+    ``r_i+ = exp(-aT) r_i + c_i (exp(-k_i T) - exp(-k_j T)) (u_c - u)`` (see
+    :mod:`mcfdd.fdd.residual`), and ``c_0 (1 - exp(-k0 T)) = 1 - exp(-aT)``, so r_i is this output
+    times ``(exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T))``, about ``(k_j - k_i) / k0_i``, at
+    every sample and in every transient (after a start or a restart both are zero).
     """
-    model, out = state[0], state[1]
     phi_a = jnp.exp(-a * dt_s)
-    phi_0 = jnp.exp(-k0 * dt_s)
-    return jnp.stack([phi_0 * model + (1.0 - phi_0) * u_c, phi_a * out + (1.0 - phi_a) * (u_c - model)]), out
+    return phi_a * state + (1.0 - phi_a) * (u_c - u), state
 
 
 def signature(theta, theta_u, tau):

@@ -145,7 +145,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
     band = jnp.where(running, state.band, decision.excitation_init(u))
-    band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
+    band, bp = decision.excitation_step(band, u_c, u, loe.pole, dt_s)
     band_xi, theta_u = evaluator.step(loe.evaluator, state.band_xi, bp, dt_s)
     tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
