@@ -645,3 +645,39 @@ def test_system_detects_the_plant_model(bank):
     retuned = params._replace(loe=params.loe._replace(tau=1.5 * params.loe.tau))
     fdd_on_lpv_model(retuned, 1, u_c).block_until_ready()
     assert fdd_on_lpv_model.traces == traces
+
+
+def test_load_weighted_excitation(bank):
+    """With excitation_load_fraction f > 0 the floor applies to the evaluated low-passed tracking error with
+    each sample weighted by min(1, |estimated load fraction| / f), against numpy; f = 0 weighs every
+    sample 1; the ratio's ||u|| is unweighted either way."""
+    n = 600
+    u_c = smooth_command(n, 3.0)
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u, _ = lpv_plant(gain, 4, u_c, u_c[0])
+    u = u[:-1]
+    outs = {}
+    for f in (0.0, 0.15):
+        params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f,
+                                                                   excitation_floor_deg=0.05)), bank, r_arm_m=R_ARM_M)
+
+        def body(state, inp):
+            c, m, t = inp
+            return system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+
+        outs[f] = jax.tree.map(np.asarray, jax.jit(lambda: jax.lax.scan(
+            body, system.init(params, u[0]), (u_c, u, np.arange(n) * DT_S))[1])())
+    out = outs[0.15]
+    band = zoh_response([0.5], [1.0, 0.5], u_c - u)
+    weight = np.minimum(1.0, np.abs(out.load_fraction) / 0.15)
+    decay = math.exp(-DT_S)
+    xi, ref = 0.0, np.empty(n)
+    for i in range(n):
+        ref[i] = xi
+        xi = decay * xi + (1.0 - decay) * abs(band[i]) * weight[i]
+    np.testing.assert_allclose(out.theta_w, ref, rtol=1e-9, atol=1e-15)
+    assert 0.0 < weight.min() < 0.5 and weight.max() == 1.0
+    np.testing.assert_array_equal(out.excited, out.theta_w >= 0.05 * DEG_M)
+    np.testing.assert_array_equal(out.theta_u, outs[0.0].theta_u)
+    np.testing.assert_array_equal(outs[0.0].theta_w, outs[0.0].theta_u)
+    assert (outs[0.0].excited & ~out.excited).any() and not (out.excited & ~outs[0.0].excited).any()

@@ -1,11 +1,14 @@
 """Decision making: eq. (15) with its normalisation, signature decoding, and eq. (25).
 
 The paper compares theta_i with tau_i ||u|| and leaves ||u|| undefined. Here ||u|| is the same
-Narendra evaluator run on the band-passed command ``a/(s+a) * s/(s+k0) u_c``, the signal that
-carries the residuals (for a frozen flight point, filter i on model j gives
-``(k_j - k_i)/k0_i * a/(s+a) * s/(s+k_j) u_c``). The ratio theta_i / ||u|| is then close to the
-relative gain mismatch |k_j - k_i| / k0_i, so one threshold tau_m serves all filters. Below an
-excitation floor no decision is made: the signature is only meaningful while the command moves.
+Narendra evaluator run on the low-passed measured tracking error ``a/(s+a) (u_c - u)``, the signal
+that drives the residuals: on a first-order plant of gain k_j, filter i gives
+``(k_j - k_i)/k0_i * a/(s+a) (u_c - u)``, so theta_i / ||u|| is the relative gain mismatch
+|k_j - k_i| / k0_i at every sample, in transients too (a model rod's tracking error in its place
+decays faster than a slower plant's after a manoeuvre, and the ratio grew on the tail), and one
+tau_m serves all filters. Below an excitation floor no decision is made: the signature is only
+meaningful while the rod is driven; the floor may apply to a load-weighted ||u|| (see
+:func:`mcfdd.fdd.system.excitation_weight`).
 
 A decoded model becomes a decision once it has been decoded without interruption for a
 confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
