@@ -1,13 +1,14 @@
 """Decision making: eq. (15) with its normalisation, signature decoding, and eq. (25).
 
 The paper compares theta_i with tau_i ||u|| and leaves ||u|| undefined. Here ||u|| is the same
-Narendra evaluator run on the low-passed measured tracking error ``a/(s+a) (u_c - u)``, the signal
-that drives the residuals: on a first-order plant of gain k_j, filter i gives
-``(k_j - k_i)/k0_i * a/(s+a) (u_c - u)``, so theta_i / ||u|| is the relative gain mismatch
-|k_j - k_i| / k0_i at every sample, in transients too (a model rod's tracking error in its place
-decays faster than a slower plant's after a manoeuvre, and the ratio grew on the tail), and one
-tau_m serves all filters. Below an excitation floor no decision is made: the signature is only
-meaningful while the rod is driven; the floor may apply to a load-weighted ||u|| (see
+Narendra evaluator run on the low-passed magnitude of the measured tracking error
+``a/(s+a) |u_c - u|``; the residuals are driven by that error: on a first-order plant of gain k_j,
+filter i gives ``(k_j - k_i)/k0_i * a/(s+a) (u_c - u)``, so theta_i / ||u|| is the relative gain
+mismatch |k_j - k_i| / k0_i at every sample while the error keeps its sign (in transients too: a
+model rod's tracking error in its place decays faster than a slower plant's after a manoeuvre,
+and the ratio grew on the tail) and at most that otherwise; one tau_m serves all filters. Below
+an excitation floor no decision is made: the signature is only meaningful while the rod is
+driven; the floor may apply to a load-weighted ||u|| (see
 :func:`mcfdd.fdd.system.excitation_weight`).
 
 A decoded model becomes a decision once it has been decoded without interruption for a
@@ -32,17 +33,20 @@ def excitation_init(u0):
 
 
 def excitation_step(state, u_c, u, a, dt_s: float):
-    """Low-passed measured tracking error ``a/(s+a) (u_c - u)``, exact for the error held over the
-    sample. Returns (new state, output).
+    """Low-passed magnitude of the measured tracking error, ``a/(s+a) |u_c - u|``, exact for the error
+    held over the sample. Returns (new state, output).
 
-    Filter i of the bank is driven by the same error: on a sampled first-order plant of gain k_j,
-    ``r_i+ = exp(-aT) r_i + c_i (exp(-k_i T) - exp(-k_j T)) (u_c - u)`` (see
-    :mod:`mcfdd.fdd.residual`), and ``c_0 (1 - exp(-k0 T)) = 1 - exp(-aT)``, so r_i is this output
-    times ``(exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T))``, about ``(k_j - k_i) / k0_i``, at
-    every sample and in every transient (after a start or a restart both are zero).
+    Filter i of the bank is driven by the signed error: on a sampled first-order plant of gain
+    k_j, ``r_i+ = exp(-aT) r_i + c_i (exp(-k_i T) - exp(-k_j T)) (u_c - u)`` (see
+    :mod:`mcfdd.fdd.residual`), and ``c_0 (1 - exp(-k0 T)) = 1 - exp(-aT)``. While the error keeps
+    its sign, r_i is therefore this output times ``(exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T))``,
+    about ``(k_j - k_i) / k0_i``, at every sample; when it changes sign, |r_i| is at most that. The
+    magnitude matters: the low-pass of the signed error cancels between the slews out and back of a
+    manoeuvre, while a residual whose gain mismatch differs between them (the load opposes one and
+    aids the other) does not, so a signed ||u|| made theta_i / ||u|| grow on every manoeuvre's tail.
     """
     phi_a = jnp.exp(-a * dt_s)
-    return phi_a * state + (1.0 - phi_a) * (u_c - u), state
+    return phi_a * state + (1.0 - phi_a) * jnp.abs(u_c - u), state
 
 
 def signature(theta, theta_u, tau):
