@@ -167,3 +167,26 @@ def test_fault_free_saturated_slews_leave_no_residual_behind_the_gate():
         ratio = run["theta_0"].to_numpy()[excited] / run["theta_u"].to_numpy()[excited]
         assert excited.any() and ratio.max() < detection_tau, (name, ratio.max())
         assert not run["fault_detected"].to_numpy()[t >= 2.0].any(), name
+
+
+def test_servo_gain_mismatch_shows_as_its_own_ratio_after_saturated_slews():
+    """The witness condition of loe_campaign's fault-free tau_f: a plant whose servo gain is 10 % low
+    (Kci 0.9) in full-stick doublets that saturate the servo valve on the way out and back, without
+    sensor noise. theta_0 / ||u|| estimates the relative gain mismatch: in the 3 s after the last
+    saturated sample (the manoeuvre's tail) it stays below the sampled mismatch
+    (exp(-k0 T) - exp(-0.9 k0 T)) / (1 - exp(-k0 T)) = 0.089 at k0 = 25 1/s (a ratio growing on the
+    tail, as with a model rod's ||u|| in its place, reached 0.093-0.104 here) and reaches half of it, and
+    no LOE fault is detected."""
+    runs = [{"name": f"doublet-{v:.0f}-{a}", "vcas_kt": v, "altitude_m": h, "kci_scale": 0.9, "noise_std_mm": 0.0,
+             "manoeuvre": manoeuvre("doublet", a)}
+            for v, h in ((140.0, 9400.0), (167.0, 8200.0)) for a in (-1.0, 1.0)]
+    cfg, df = simulate(runs, 16.0, {"loe": {"excitation_floor_deg": 0.1}})
+    for name, run in df.groupby("run"):
+        t = run["t_s"].to_numpy()
+        saturated = np.abs(run["u_c_deg"] - run["u_deg"]).to_numpy() > cfg.fdd.loe.linear_range_deg
+        last = t[np.flatnonzero(saturated)[-1]]
+        assert 5.0 < last < 12.0, name
+        tail = run["excited"].to_numpy() & (t > last) & (t <= last + 3.0)
+        ratio = run["theta_0"].to_numpy()[tail] / run["theta_u"].to_numpy()[tail]
+        assert tail.any() and 0.045 < ratio.max() < 0.089, (name, ratio.max())
+        assert not run["fault_detected"].to_numpy().any(), name
