@@ -370,8 +370,12 @@ class LoeDetectionConfig(Section):
                                 "rejected while theta_0 / ||u|| is above this and ||u|| above the excitation floor")
     detection_confirm_s: float = spec(0.5, lo=0.0, hi=60.0, doc="detection: the rejection must persist this long")
     excitation_floor_deg: float = spec(0.15, lo=0.0, doc="no decision (detection or identification) while ||u|| "
-                                       "is below this: theta_0 reaches 0.014 deg from 0.07 mm sensor noise in quiet "
-                                       "flight, so noise alone keeps theta_0 / ||u|| below tau = 0.1")
+                                       "(the evaluated low-passed |u_c - u|) is below this: sensor noise alone gives "
+                                       "about 0.8 x its RMS (0.06 deg at 0.07 mm)")
+    excitation_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="load-weighted excitation: the floor "
+                                           "applies to ||u|| with each sample weighted by min(1, estimated hinge-load "
+                                           "fraction / this), so decisions are made only where the fault-free and "
+                                           "surface-loss models differ; 0 weighs every sample 1")
     confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="identification: a decoded model must persist this long")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (1 disables)")

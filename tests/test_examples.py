@@ -14,10 +14,11 @@ SMALL = {"MCFDD_EXAMPLE_SCENARIOS": "32", "MCFDD_EXAMPLE_DURATION_S": "4", "MCFD
 
 def test_every_example_is_listed():
     assert sorted(p.name for p in EXAMPLES.glob("*.py")) == sorted(
-        ["python_space.py", "threshold_tradeoff.py", "tune_and_validate.py"])
+        ["held_out_validation.py", "python_space.py", "threshold_tradeoff.py", "tune_and_validate.py"])
 
 
-@pytest.mark.parametrize("name", ["threshold_tradeoff.py", "python_space.py", "tune_and_validate.py"])
+@pytest.mark.parametrize("name", ["threshold_tradeoff.py", "python_space.py", "tune_and_validate.py",
+                                  "held_out_validation.py"])
 def test_example_runs(name, tmp_path, monkeypatch, capsys):
     for key, value in SMALL.items():
         monkeypatch.setenv(key, value)
@@ -26,6 +27,9 @@ def test_example_runs(name, tmp_path, monkeypatch, capsys):
     printed = capsys.readouterr().out
     if name == "threshold_tradeoff.py":
         assert "no false alarm in" in printed and (tmp_path / "threshold_tradeoff.png").stat().st_size > 0
+    elif name == "held_out_validation.py":
+        assert "fault-free LOE false alarms:" in printed and "of 8 runs" in printed and "disconnection missed" in printed
+        assert (tmp_path / "held_out_validation" / "summary.md").stat().st_size > 0
     elif name == "python_space.py":
         assert "overall" in printed and "bank_to_bank" in printed
     else:

@@ -337,27 +337,52 @@ def test_evaluator_parameters_each_matter():
 # Decisions, eqs. (15) and (25)
 
 
-def test_excitation_band_pass_is_zoh_cascade():
-    """excitation_step = ZOH of k0/(s+k0) (model rod), then ZOH of a/(s+a) on the held error u_c - rod,
-    to 1e-12; in the limit T -> 0 the band-pass a/(s+a) * s/(s+k0)."""
-    a, k0, u_c0 = 1.5, 24.0, 0.01
-    u_c = u_c0 + np.cumsum(np.random.default_rng(6).normal(0.0, 1e-3, 500))
+def test_excitation_is_the_low_passed_tracking_error():
+    """excitation_step = ZOH of a/(s+a) on the held magnitude of the measured tracking error |u_c - u|, to 1e-12."""
+    a = 1.5
+    rng = np.random.default_rng(6)
+    u_c = 0.01 + np.cumsum(rng.normal(0.0, 1e-3, 500))
+    u = u_c - rng.normal(0.0, 2e-3, 500)
 
-    def body(state, c):
-        return decision.excitation_step(state, c, a, k0, DT_S)
+    def body(state, inp):
+        return decision.excitation_step(state, inp[0], inp[1], a, DT_S)
 
-    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(u_c0), x)[1])(u_c))
-    rod = u_c0 + zoh_response([k0], [1.0, k0], u_c - u_c0)  # at rest at u_c0: deviations start from zero
-    ref = zoh_response([a], [1.0, a], u_c - rod)
-    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c)))
-    assert np.max(np.abs(ref)) > 0.01 * np.ptp(u_c)
-    # On a smooth command, the continuous band-pass times the lag of the sampled error (the error is
-    # read as a new command is applied, T / (1 - exp(-k0 T)) behind instead of 1/k0), as in the bank's residuals.
-    smooth = smooth_command(500, 0.0)
-    out = np.asarray(jax.jit(lambda x: jax.lax.scan(body, decision.excitation_init(0.0), x)[1])(smooth))
-    band = sig.lsim(([a, 0.0], [1.0, a + k0, a * k0]), smooth, np.arange(smooth.size) * DT_S, interp=False)[1]
-    band *= k0 * DT_S / (1.0 - math.exp(-k0 * DT_S))
-    assert np.max(np.abs(out - band)) < 0.02 * np.max(np.abs(band))
+    out = np.asarray(jax.jit(lambda x, m: jax.lax.scan(body, decision.excitation_init(m[0]), (x, m))[1])(u_c, u))
+    ref = zoh_response([a], [1.0, a], np.abs(u_c - u))
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * np.max(np.abs(u_c - u)))
+    assert np.max(np.abs(ref)) > 0.1 * np.std(u_c - u) and np.min(u_c - u) < 0.0 < np.max(u_c - u)
+
+
+@pytest.mark.parametrize("plant_k", [17.0, 30.0], ids=["slower", "faster"])
+def test_ratio_is_the_relative_gain_mismatch(plant_k):
+    """On a ZOH-sampled first-order plant of gain k_j with the filters' gains frozen, filter i's residual
+    is the excitation low-pass times s_i = (exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T)) at every
+    sample while the tracking error keeps its sign (a step from rest and its transient), so
+    theta_i / ||u|| = |s_i| (about |k_j - k_i| / k0_i) there; in a manoeuvre out and back after it,
+    theta_i / ||u|| stays at most |s_i| and falls below it (the signed error cancels in r_i)."""
+    a, n, step_end = 0.5, 900, 400
+    k, k0 = FROZEN_K, np.array([24.0, 18.0, 10.0])
+    i = np.arange(n)
+    u_c = (np.where(i >= 50, 3.0, 0.0) + np.where(i >= step_end, 6.0 * np.sin(2 * np.pi * 0.7 * (i - step_end) * DT_S),
+                                                   0.0)) * DEG_M
+    phi_j = math.exp(-plant_k * DT_S)
+    u = [0.0]
+    for c in u_c[:-1]:
+        u.append(phi_j * u[-1] + (1.0 - phi_j) * c)
+    u = np.array(u)
+    r = np.asarray(run_residual(np.zeros(3), u, u_c, np.broadcast_to(k, (n, 3)), k0, a))
+    band = zoh_response([a], [1.0, a], np.abs(u_c - u))
+    scale = (np.exp(-k * DT_S) - phi_j) / -np.expm1(-k0 * DT_S)
+    one_sign = i < step_end
+    np.testing.assert_allclose(r[one_sign], band[one_sign, None] * scale, rtol=0, atol=1e-12 * np.max(np.abs(r)))
+    params = evaluator.NarendraParams(0.0, 1.0, 1.0)
+    theta, theta_u = np.asarray(run_evaluator(params, r)), np.asarray(run_evaluator(params, band))
+    ratio = theta[theta_u > 0] / theta_u[theta_u > 0, None]
+    first = ratio[:step_end - 51]
+    np.testing.assert_allclose(first, np.broadcast_to(np.abs(scale), first.shape), rtol=1e-9, atol=1e-12)
+    assert np.all(ratio <= np.abs(scale) * (1.0 + 1e-9) + 1e-12)
+    assert np.all(ratio[-100:, [0, 2]] < 0.8 * np.abs(scale[[0, 2]]))
+    np.testing.assert_allclose(np.abs(scale), np.abs(plant_k - k) / k0, rtol=0.15, atol=1e-12)
 
 
 def test_gated_filters_restart_from_equilibrium(bank):
@@ -626,3 +651,39 @@ def test_system_detects_the_plant_model(bank):
     retuned = params._replace(loe=params.loe._replace(tau=1.5 * params.loe.tau))
     fdd_on_lpv_model(retuned, 1, u_c).block_until_ready()
     assert fdd_on_lpv_model.traces == traces
+
+
+def test_load_weighted_excitation(bank):
+    """With excitation_load_fraction f > 0 the floor applies to the evaluated low-passed tracking error with
+    each sample weighted by min(1, |estimated load fraction| / f), against numpy; f = 0 weighs every
+    sample 1; the ratio's ||u|| is unweighted either way."""
+    n = 600
+    u_c = smooth_command(n, 3.0)
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    u, _ = lpv_plant(gain, 4, u_c, u_c[0])
+    u = u[:-1]
+    outs = {}
+    for f in (0.0, 0.15):
+        params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f,
+                                                                   excitation_floor_deg=0.05)), bank, r_arm_m=R_ARM_M)
+
+        def body(state, inp):
+            c, m, t = inp
+            return system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+
+        outs[f] = jax.tree.map(np.asarray, jax.jit(lambda: jax.lax.scan(
+            body, system.init(params, u[0]), (u_c, u, np.arange(n) * DT_S))[1])())
+    out = outs[0.15]
+    band = zoh_response([0.5], [1.0, 0.5], np.abs(u_c - u))
+    weight = np.minimum(1.0, np.abs(out.load_fraction) / 0.15)
+    decay = math.exp(-DT_S)
+    xi, ref = 0.0, np.empty(n)
+    for i in range(n):
+        ref[i] = xi
+        xi = decay * xi + (1.0 - decay) * abs(band[i]) * weight[i]
+    np.testing.assert_allclose(out.theta_w, ref, rtol=1e-9, atol=1e-15)
+    assert 0.0 < weight.min() < 0.5 and weight.max() == 1.0
+    np.testing.assert_array_equal(out.excited, out.theta_w >= 0.05 * DEG_M)
+    np.testing.assert_array_equal(out.theta_u, outs[0.0].theta_u)
+    np.testing.assert_array_equal(outs[0.0].theta_w, outs[0.0].theta_u)
+    assert (outs[0.0].excited & ~out.excited).any() and not (out.excited & ~outs[0.0].excited).any()

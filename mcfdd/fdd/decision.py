@@ -1,11 +1,15 @@
 """Decision making: eq. (15) with its normalisation, signature decoding, and eq. (25).
 
 The paper compares theta_i with tau_i ||u|| and leaves ||u|| undefined. Here ||u|| is the same
-Narendra evaluator run on the band-passed command ``a/(s+a) * s/(s+k0) u_c``, the signal that
-carries the residuals (for a frozen flight point, filter i on model j gives
-``(k_j - k_i)/k0_i * a/(s+a) * s/(s+k_j) u_c``). The ratio theta_i / ||u|| is then close to the
-relative gain mismatch |k_j - k_i| / k0_i, so one threshold tau_m serves all filters. Below an
-excitation floor no decision is made: the signature is only meaningful while the command moves.
+Narendra evaluator run on the low-passed magnitude of the measured tracking error
+``a/(s+a) |u_c - u|``; the residuals are driven by that error: on a first-order plant of gain k_j,
+filter i gives ``(k_j - k_i)/k0_i * a/(s+a) (u_c - u)``, so theta_i / ||u|| is the relative gain
+mismatch |k_j - k_i| / k0_i at every sample while the error keeps its sign (in transients too: a
+model rod's tracking error in its place decays faster than a slower plant's after a manoeuvre,
+and the ratio grew on the tail) and at most that otherwise; one tau_m serves all filters. Below
+an excitation floor no decision is made: the signature is only meaningful while the rod is
+driven; the floor may apply to a load-weighted ||u|| (see
+:func:`mcfdd.fdd.system.excitation_weight`).
 
 A decoded model becomes a decision once it has been decoded without interruption for a
 confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
@@ -20,27 +24,29 @@ NO_DECISION = -1
 
 
 def excitation_init(u0):
-    """State of the band-pass in equilibrium with the measured position u0: (model rod, output) = (u0, 0).
+    """State of the low-pass in equilibrium (output 0) at measured position u0.
 
-    Also the restart of the band-pass while residual evaluation is suspended (see
+    Also the restart of the low-pass while residual evaluation is suspended (see
     :func:`mcfdd.fdd.system.step`), so that it leaves no transient of a gated interval behind.
     """
-    u0 = jnp.asarray(u0)
-    return jnp.stack([u0, jnp.zeros_like(u0)])
+    return jnp.zeros_like(jnp.asarray(u0))
 
 
-def excitation_step(state, u_c, a, k0, dt_s: float):
-    """Band-passed command ``a/(s+a) * s/(s+k0) u_c``. Returns (new state, output).
+def excitation_step(state, u_c, u, a, dt_s: float):
+    """Low-passed magnitude of the measured tracking error, ``a/(s+a) |u_c - u|``, exact for the error
+    held over the sample. Returns (new state, output).
 
-    Realised as the tracking error ``u_c - m`` of a first-order model rod ``m' = k0 (u_c - m)``
-    (exact for u_c held over the sample), low-passed by ``a/(s+a)`` (exact for the error held):
-    the same signal, ``a/(s+a) (u_c - u)`` on a plant of gain k0, that drives every residual of
-    the bank, so a restart with ``m = u`` matches a restart of the bank's filters.
+    Filter i of the bank is driven by the signed error: on a sampled first-order plant of gain
+    k_j, ``r_i+ = exp(-aT) r_i + c_i (exp(-k_i T) - exp(-k_j T)) (u_c - u)`` (see
+    :mod:`mcfdd.fdd.residual`), and ``c_0 (1 - exp(-k0 T)) = 1 - exp(-aT)``. While the error keeps
+    its sign, r_i is therefore this output times ``(exp(-k_i T) - exp(-k_j T)) / (1 - exp(-k0_i T))``,
+    about ``(k_j - k_i) / k0_i``, at every sample; when it changes sign, |r_i| is at most that. The
+    magnitude matters: the low-pass of the signed error cancels between the slews out and back of a
+    manoeuvre, while a residual whose gain mismatch differs between them (the load opposes one and
+    aids the other) does not, so a signed ||u|| made theta_i / ||u|| grow on every manoeuvre's tail.
     """
-    model, out = state[0], state[1]
     phi_a = jnp.exp(-a * dt_s)
-    phi_0 = jnp.exp(-k0 * dt_s)
-    return jnp.stack([phi_0 * model + (1.0 - phi_0) * u_c, phi_a * out + (1.0 - phi_a) * (u_c - model)]), out
+    return phi_a * state + (1.0 - phi_a) * jnp.abs(u_c - u), state
 
 
 def signature(theta, theta_u, tau):

@@ -9,10 +9,13 @@
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
   which no first-order model follows). While evaluation is suspended, and at the first sample
   after (the last gated sample's step propagates the first-order prediction of a saturated
-  sample, which the rod did not follow), the bank's filters and the excitation band-pass restart
+  sample, which the rod did not follow), the bank's filters and the excitation low-pass restart
   from equilibrium with the measured position (residual 0, ||u|| input 0), so no filter carries a
   transient of the gated interval out of it: after the gate reopens, every residual and ||u||
-  are driven by the same measured tracking error from zero. While a stall
+  are driven by the same measured tracking error from zero. Decisions are made while ||u|| is
+  above the excitation floor, optionally with each sample's excitation weighted by the estimated
+  load fraction (``excitation_load_fraction``): surface losses only show where the hinge load is
+  large, and sensor noise dominates the ratio at small excitation. While a stall
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
@@ -40,13 +43,14 @@ from mcfdd.fdd import decision, evaluator, lpv, residual, stall, thresholds
 
 class LoeParams(NamedTuple):
     bank: lpv.GainBank
-    pole: float  # a of the bank's filters and of the excitation band-pass (1/s)
+    pole: float  # a of the bank's filters and of the excitation low-pass (1/s)
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
     tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
     detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
     detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
-    excitation_floor: float  # minimum ||u|| (theta units, m s) for a decision
+    excitation_floor: float  # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
+    excitation_load_fraction: float  # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
@@ -72,6 +76,7 @@ class FddState(NamedTuple):
     bank_xi: jnp.ndarray
     band: jnp.ndarray
     band_xi: jnp.ndarray
+    band_w_xi: jnp.ndarray  # evaluated load-weighted excitation
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
     confirm: tuple
     detect: tuple
@@ -85,7 +90,8 @@ class FddState(NamedTuple):
 class FddOutputs(NamedTuple):
     r: jnp.ndarray  # (N,) bank residuals (m)
     theta: jnp.ndarray  # (N,) evaluated residuals
-    theta_u: jnp.ndarray  # ||u||, evaluated band-passed command
+    theta_u: jnp.ndarray  # ||u||, evaluated low-passed tracking error
+    theta_w: jnp.ndarray  # the same weighted by the estimated load fraction (= theta_u without load weighting)
     load_fraction: jnp.ndarray  # estimated hinge-load fraction (residual evaluation stops above the limit)
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
     iota: jnp.ndarray  # (N,) signature
@@ -112,6 +118,17 @@ def load_fraction(bank: lpv.GainBank, k):
     return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
+def excitation_weight(loe: LoeParams, load):
+    """Weight of the excitation at estimated hinge-load fraction ``load``: min(1, |load| / f_ref).
+
+    The fault-free and no-load models differ by about half the load fraction (the gain scales as
+    sqrt(1 - f)), so excitation at small loads cannot separate a loss of surface effectiveness from
+    the uncertainty; f_ref = ``excitation_load_fraction`` = 0 weighs every sample 1.
+    """
+    f_ref = loe.excitation_load_fraction
+    return jnp.where(f_ref > 0.0, jnp.minimum(1.0, jnp.abs(load) / jnp.where(f_ref > 0.0, f_ref, 1.0)), 1.0)
+
+
 def init(params: FddParams, u0) -> FddState:
     """State for a start at rest (in equilibrium) at measured position u0."""
     n = params.loe.bank.k0.shape[0]
@@ -122,6 +139,7 @@ def init(params: FddParams, u0) -> FddState:
         bank_xi=jnp.zeros_like(bank_xq),
         band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
+        band_w_xi=jnp.zeros_like(u0),
         was_valid=jnp.asarray(True),
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
@@ -149,11 +167,13 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
     theta = once(theta, params.one)
     band = jnp.where(running, state.band, decision.excitation_init(u))
-    band, bp = decision.excitation_step(band, u_c, loe.pole, bank.k0[0], dt_s)
+    band, bp = decision.excitation_step(band, u_c, u, loe.pole, dt_s)
     band_xi, theta_u = once(evaluator.step(loe.evaluator, state.band_xi, bp, dt_s), params.one)
+    band_w_xi, theta_w = once(evaluator.step(loe.evaluator, state.band_w_xi, bp * excitation_weight(loe, load), dt_s),
+                              params.one)
     tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
-    excited = theta_u >= loe.excitation_floor
+    excited = theta_w >= loe.excitation_floor
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
@@ -168,7 +188,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal,
+    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal,
                    model)
-    return new, FddOutputs(r, theta, theta_u, load, excited, iota, decoded, detected, fault == 1, r_stall,
+    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected, fault == 1, r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
