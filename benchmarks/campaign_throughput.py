@@ -92,10 +92,15 @@ HLO_BATCH, HLO_STEPS = 128, 600  # the small batch whose compiled program is cou
 def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
         raise SystemExit(f"--scenarios: must be a multiple of {GRID_CELLS} (fault kinds on a grid)")
+    # revisions before campaign.scenarios became the total (a --baseline checkout) count per grid cell
+    total = hasattr(config.CampaignConfig, "grid_cells")
+    # shorter runs (the peer, the HLO count) keep their onsets and manoeuvres inside the run
+    scale = min(1.0, duration_s / 60.0)
+    space = {**SPACE, **{k: [v * scale for v in SPACE[k]] for k in ("fault_onset_s", "t_start_s")}}
     return mcfdd.load_config({
-        "campaign": {"scenarios": n_scenarios, "design": "lhs", "grid": ["fault_kind"], "seed": 1,
-                     "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
-        "space": SPACE,
+        "campaign": {"scenarios": n_scenarios if total else n_scenarios // GRID_CELLS, "design": "lhs",
+                     "grid": ["fault_kind"], "seed": 1, "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
+        "space": space,
     }, "campaign")
 
 
