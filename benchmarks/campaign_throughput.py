@@ -26,7 +26,9 @@ its package is imported first (``PYTHONPATH``) in its own subprocesses, alternat
 checkout's ``--rounds`` times. Ratios in one run are what counts on a shared machine.
 
 Peers, in the same run: the same pipeline as a Python ``for`` loop over time around ONE jitted,
-vmapped step with the state in NumPy host arrays (outcomes checked against ``run_batch``); and
+vmapped step with the state in NumPy host arrays (outcomes checked against ``run_batch``: each
+discrete difference with the decision nearest to its threshold, continuous columns by their largest
+relative difference; ``--peer-precision float64`` repeats the check in float64); and
 the machine's ceiling, a fused C kernel of a toy step of the same shape (``ceiling_kernel.c``,
 compiled here with gcc and OpenMP, called through ctypes), IEEE and ``-ffast-math``.
 
@@ -72,7 +74,7 @@ import numpy as np  # noqa: E402
 from mcfdd import config, io  # noqa: E402
 from mcfdd.analysis import campaign  # noqa: E402
 from mcfdd.workflows import campaign as campaign_runner  # noqa: E402
-from mcfdd.workflows.common import CompileCounter  # noqa: E402
+from mcfdd.workflows.common import CompileCounter, precision as precision_context  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 SPACE = {
@@ -89,7 +91,8 @@ DT_S = 0.01
 HLO_BATCH, HLO_STEPS = 128, 600  # the small batch whose compiled program is counted
 
 
-def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> config.CampaignConfig:
+def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int,
+                    precision: str = "float32") -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
         raise SystemExit(f"--scenarios: must be a multiple of {GRID_CELLS} (fault kinds on a grid)")
     # revisions before campaign.scenarios became the total (a --baseline checkout) count per grid cell
@@ -99,7 +102,8 @@ def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> con
     space = {**SPACE, **{k: [v * scale for v in SPACE[k]] for k in ("fault_onset_s", "t_start_s")}}
     return mcfdd.load_config({
         "campaign": {"scenarios": n_scenarios if total else n_scenarios // GRID_CELLS, "design": "lhs",
-                     "grid": ["fault_kind"], "seed": 1, "chunk_size": chunk_size, "duration_s": duration_s, "precision": "float32"},
+                     "grid": ["fault_kind"], "seed": 1, "chunk_size": chunk_size, "duration_s": duration_s,
+                     "precision": precision},
         "space": space,
     }, "campaign")
 
@@ -107,8 +111,8 @@ def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int) -> con
 class Problem:
     """The campaign of :func:`campaign_config` set up as ``run_campaign`` sets it up, and its chunks."""
 
-    def __init__(self, n_scenarios: int, n_steps: int, chunk_size: int):
-        cfg = campaign_config(n_scenarios, n_steps * DT_S, chunk_size)
+    def __init__(self, n_scenarios: int, n_steps: int, chunk_size: int, precision: str = "float32"):
+        cfg = campaign_config(n_scenarios, n_steps * DT_S, chunk_size, precision)
         self.c = cfg.campaign
         start = time.perf_counter()
         with CompileCounter() as compiles:
@@ -319,7 +323,7 @@ def peer_functions(p: Problem, n_steps: int):
         return campaign.init_one(model, fdd_params, scenario, key, dt_s)
 
     def step_one(fdd_params, settings, params, scenario, truth, carry, key, k):
-        normals = noise.normals(noise.key_words(key), k, closed_loop.NOISE_DIM)
+        normals = noise.normals(noise.key_words(key), k, closed_loop.NOISE_DIM, jnp.result_type(float))
         return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, normals, dt_s, substeps,
                                  kinds)[0]
 
@@ -349,44 +353,131 @@ def run_peer(p: Problem, fns, ids, n_steps: int):
     return {k: np.asarray(v)[:len(ids)] for k, v in out.items()}
 
 
+def is_event_time(column: str) -> bool:
+    """Columns that hold the time of an event on the sample grid (inf: none); compared exactly."""
+    return column.endswith("_time_s") or "_latency_" in column
+
+
 def compare(a: dict, b: dict) -> dict:
-    """Scenarios whose outcomes differ between two runs (floats to 1e-4 relative, ints exactly)."""
-    differ = np.zeros(len(a["status"]), dtype=bool)
-    worst = 0.0
+    """Outcomes of two runs column by column.
+
+    Discrete outcomes (integers, booleans, event times) must be equal: each difference is listed
+    with both values. Continuous columns (float measures such as ratios and peaks) differ in
+    their last bits between two compiled programs: each gets its largest relative difference.
+    """
+    discrete, continuous = [], {}
     for k in a:
         x, y = np.asarray(a[k]), np.asarray(b[k])
-        if np.issubdtype(x.dtype, np.floating):
-            same = (x == y) | np.isclose(x, y, rtol=1e-4, atol=1e-9)
+        floats = np.issubdtype(x.dtype, np.floating)
+        if floats and not is_event_time(k):
             finite = np.isfinite(x) & np.isfinite(y)
-            if finite.any():
-                worst = max(worst, float(np.max(np.abs(x - y)[finite] / np.maximum(np.abs(x[finite]), 1e-12))))
+            rel = np.abs(x[finite] - y[finite]) / np.maximum(np.abs(x[finite]), 1e-12)
+            continuous[k] = float(rel.max(initial=0.0))
+            same = finite | (np.isnan(x) & np.isnan(y)) | (x == y)
         else:
-            same = x == y
-        differ |= ~same.reshape(len(differ), -1).all(axis=1)
-    return {"scenarios_differing": int(differ.sum()), "max_rel_diff": worst}
+            same = (x == y) | (np.isnan(x) & np.isnan(y)) if floats else x == y
+        for i in np.flatnonzero(~same.reshape(len(x), -1).all(axis=1)):
+            discrete.append({"column": k, "scenario": int(i), "values": [x[i].tolist(), y[i].tolist()]})
+    return {"discrete": discrete, "continuous": continuous}
 
 
-def measure_peer(n_scenarios: int, n_steps: int, repeats: int) -> dict:
-    p = Problem(n_scenarios, n_steps, n_scenarios)
-    ids = p.chunks[0]
-    fns = peer_functions(p, n_steps)
-    start = time.perf_counter()
-    run_peer(p, fns, ids, 1)  # compiles init, step and finalize
-    first_one_step = time.perf_counter() - start
-    start = time.perf_counter()
-    run_peer(p, fns, ids, 1)
-    one_step = time.perf_counter() - start
-    runs = []
-    for _ in range(repeats):
-        cpu0, start = _cpu_s(), time.perf_counter()
-        out = run_peer(p, fns, ids, n_steps)
-        wall = time.perf_counter() - start
-        runs.append((wall, (_cpu_s() - cpu0) / wall))
-    wall, cpu = min(runs)
-    return {"kind": "peer", "scenarios": p.n, "steps": n_steps, "devices": jax.device_count(),
+def decision_margins(p: Problem, scenario: int, n_steps: int):
+    """Signed relative distance (statistic / threshold - 1) of each fixed-threshold FDD decision of one scenario
+    at every step, from its plant and FDD history (``simulate.fdd_batch``, a third compiled program).
+
+    Returns {decision: (n_steps,) array}. The signature (15) is included only for constant thresholds
+    (``tau_schedule`` = 0).
+    """
+    from mcfdd.analysis import simulate
+
+    s, c = p.setup, p.c
+    scen, _, keys = p.inputs(np.array([scenario]), 1)
+    _, fo = simulate.fdd_batch(s.model, s.fdd_params, scen, keys, n_steps, c.dt_s, c.substeps, s.kinds)
+    loe, stl = s.fdd_params.loe, s.fdd_params.stall
+    theta, theta_u = np.asarray(fo.theta)[0], np.asarray(fo.theta_u)[0]
+    with np.errstate(divide="ignore", invalid="ignore"):  # ||u|| = 0 before the first excitation
+        out = {"theta_0 / (detection_tau ||u||)": theta[:, 0] / (float(loe.detection_tau) * theta_u),
+               "theta_w / excitation_floor": np.asarray(fo.theta_w)[0] / float(loe.excitation_floor),
+               "theta_stall / stall tau": np.asarray(fo.theta_stall)[0] / float(stl.tau)}
+        if float(loe.tau_schedule) == 0.0:
+            tau = np.broadcast_to(np.asarray(loe.tau), theta.shape[1:])
+            out.update({f"theta_{i} / (tau_{i} ||u||)": theta[:, i] / (tau[i] * theta_u)
+                        for i in range(theta.shape[1])})
+    return {name: ratio - 1.0 for name, ratio in out.items()}
+
+
+def nearest_decision(p: Problem, diff: dict, n_steps: int) -> dict | None:
+    """For an event time that two runs put on different steps: the decision closest to its threshold in the
+    steps that decide it (from the earlier time less its confirmation window to the later time)."""
+    if not diff["column"].endswith("_time_s"):
+        return None
+    times = [t for t in diff["values"] if np.isfinite(t)]
+    if not times:
+        return None
+    loe, dt = p.setup.fdd_params.loe, p.c.dt_s
+    detection = diff["column"] in ("detection_time_s", "false_alarm_time_s")
+    identification = diff["column"] in ("identification_time_s", "false_identification_time_s")
+    confirm = float(loe.detection_confirm_s if detection else loe.confirm_s if identification
+                    else max(loe.detection_confirm_s, loe.confirm_s))
+    lo = max(int(np.floor((min(times) - confirm) / dt)) - 1, 0)
+    hi = min(int(np.ceil(max(times) / dt)) + 1, n_steps)
+    margins = decision_margins(p, diff["scenario"], n_steps)
+    margins = {k: np.where(np.isfinite(v), v, np.inf) for k, v in margins.items()}
+    if detection:
+        margins = {k: v for k, v in margins.items() if k.startswith(("theta_0 / (detection", "theta_w"))}
+    elif identification:
+        margins = {k: v for k, v in margins.items() if "(tau_" in k or k.startswith("theta_w")}
+    name, step = min(((k, lo + int(np.argmin(np.abs(v[lo:hi])))) for k, v in margins.items()),
+                     key=lambda ks: abs(margins[ks[0]][ks[1]]))
+    return {"decision": name, "t_s": step * dt, "margin": float(margins[name][step])}
+
+
+def measure_peer(n_scenarios: int, n_steps: int, repeats: int, precision: str = "float32") -> dict:
+    with precision_context(precision):
+        p = Problem(n_scenarios, n_steps, n_scenarios, precision)
+        ids = p.chunks[0]
+        fns = peer_functions(p, n_steps)
+        start = time.perf_counter()
+        run_peer(p, fns, ids, 1)  # compiles init, step and finalize
+        first_one_step = time.perf_counter() - start
+        start = time.perf_counter()
+        run_peer(p, fns, ids, 1)
+        one_step = time.perf_counter() - start
+        runs = []
+        for _ in range(repeats):
+            cpu0, start = _cpu_s(), time.perf_counter()
+            out = run_peer(p, fns, ids, n_steps)
+            wall = time.perf_counter() - start
+            runs.append((wall, (_cpu_s() - cpu0) / wall))
+        wall, cpu = min(runs)
+        check = compare(p.run_chunk(ids, n_steps), out)
+        for diff in check["discrete"]:
+            diff["nearest_decision"] = nearest_decision(p, diff, n_steps)
+    return {"kind": "peer", "scenarios": p.n, "steps": n_steps, "devices": jax.device_count(), "precision": precision,
             "compile_s": first_one_step - one_step, "run_s": wall, "cpu_per_wall": cpu,
-            "throughput": p.n * n_steps / wall, "step_ms": 1e3 * wall / n_steps,
-            "check": compare(p.run_chunk(ids, n_steps), out), "peak_rss_mb": _peak_rss_mb()}
+            "throughput": p.n * n_steps / wall, "step_ms": 1e3 * wall / n_steps, "dt_s": p.c.dt_s,
+            "check": check, "peak_rss_mb": _peak_rss_mb()}
+
+
+def check_lines(peer: dict) -> list[str]:
+    """The peer's outcomes against run_batch, in words: discrete differences with the decision behind each."""
+    chk = peer["check"]
+    worst = sorted(chk["continuous"].items(), key=lambda kv: -kv[1])[:3]
+    lines = [f"  outcomes vs run_batch ({peer['precision']}): {len(chk['discrete'])} discrete difference(s) in "
+             f"{len({d['scenario'] for d in chk['discrete']})} of {peer['scenarios']:,} scenarios; continuous "
+             f"columns: largest relative differences " + ", ".join(f"{k} {v:.2g}" for k, v in worst)]
+    for d in chk["discrete"]:
+        a, b = d["values"]
+        unit = " s" if is_event_time(d["column"]) else ""
+        text = f"  - {d['column']} of scenario {d['scenario']}: run_batch {a:.6g}{unit}, peer {b:.6g}{unit}"
+        if unit and np.isfinite(a) and np.isfinite(b):
+            text += f" ({abs(a - b) / peer['dt_s']:.0f} step(s))"
+        near = d.get("nearest_decision")
+        if near is not None:
+            text += (f"; nearest decision in the deciding steps: {near['decision']} - 1 = {near['margin']:+.2g} "
+                     f"at t = {near['t_s']:.2f} s")
+        lines.append(text)
+    return lines
 
 
 STAGES = ("random numbers", "+ plant", "+ both FDD systems", "+ online reductions (the campaign)",
@@ -512,7 +603,7 @@ def worker(spec: dict) -> dict:
     elif kind == "ceiling":
         result = measure_ceiling(spec["scenarios"], spec["steps"], spec["repeats"], spec["fast_math"])
     else:
-        result = measure_peer(spec["scenarios"], spec["steps"], spec["repeats"])
+        result = measure_peer(spec["scenarios"], spec["steps"], spec["repeats"], spec["precision"])
     return {**result, "source": source_digest(), "package": str(Path(mcfdd.__file__).parent)}
 
 
@@ -578,6 +669,8 @@ def main(argv=None):
     parser.add_argument("--peer-scenarios", type=int, default=1024)
     parser.add_argument("--peer-steps", type=int, default=600)
     parser.add_argument("--no-peer", action="store_true", help="skip the Python-loop peer")
+    parser.add_argument("--peer-precision", choices=("float32", "float64"), default="float32",
+                        help="precision of the peer and of the run_batch it is checked against (default float32)")
     parser.add_argument("--no-breakdown", action="store_true", help="skip the stage breakdown")
     parser.add_argument("--no-ceiling", action="store_true", help="skip the C kernel")
     parser.add_argument("--barrier-check", action="store_true",
@@ -617,7 +710,8 @@ def main(argv=None):
                   f"load before {r['load_before'][0]:.2f}", flush=True)
     best = {label: max(rs, key=lambda r: r["throughput"]) for label, rs in results.items()}
     peer = None if args.no_peer else spawn({"kind": "peer", "scenarios": args.peer_scenarios,
-                                            "steps": args.peer_steps, "repeats": args.repeats}, args.wait_quiet)
+                                            "steps": args.peer_steps, "repeats": args.repeats,
+                                            "precision": args.peer_precision}, args.wait_quiet)
     ceilings = [] if args.no_ceiling else [
         spawn({"kind": "ceiling", "scenarios": args.scenarios, "steps": args.steps, "repeats": args.repeats,
                "fast_math": fast}, args.wait_quiet) for fast in (False, True)]
@@ -637,13 +731,11 @@ def main(argv=None):
               f"measurements each)")
     print(f"aim 2e7 scenario-steps/s: {this / 2e7:.2f} of it;  1e8: {this / 1e8:.2f} of it")
     if peer is not None:
-        chk = peer["check"]
         print(f"peer (python loop over time, jitted vectorised step, state in NumPy host arrays): "
               f"{peer['scenarios']:,} x {peer['steps']:,} steps, compile {peer['compile_s']:.1f} s, run "
               f"{peer['run_s']:.2f} s ({peer['step_ms']:.2f} ms per step), {peer['throughput']:.3g} scenario-steps/s, "
-              f"CPU/wall {peer['cpu_per_wall']:.2f}; outcomes vs run_batch: {chk['scenarios_differing']} scenario(s) "
-              f"differ, largest relative difference {chk['max_rel_diff']:.2g};  pipeline / peer: "
-              f"{this / peer['throughput']:.0f}x")
+              f"CPU/wall {peer['cpu_per_wall']:.2f};  pipeline / peer: {this / peer['throughput']:.0f}x")
+        print("\n".join(check_lines(peer)))
     for c in ceilings:
         print(f"ceiling (fused C toy step, {c['flags']}, {c['threads']} threads): {c['run_s']:.2f} s, "
               f"{c['throughput']:.3g} scenario-steps/s, CPU/wall {c['cpu_per_wall']:.2f};  pipeline / ceiling: "
