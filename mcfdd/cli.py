@@ -91,6 +91,15 @@ def _campaign_config(args) -> config.CampaignConfig:
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
+def _check_cluster_flags(args):
+    """The TLS files are for a ``--scheduler``: given without one, they are refused before any work."""
+    if args.scheduler is None:
+        for key in ("tls_ca_file", "tls_cert", "tls_key"):
+            if getattr(args, key) is not None:
+                raise config.ConfigError(f"--{key.replace('_', '-')}: only used with --scheduler (a tls:// "
+                                         f"scheduler); give --scheduler ADDR or leave it out")
+
+
 @contextlib.contextmanager
 def _campaign_executor(args):
     """None (chunks in this process), or a Dask client for ``--scheduler`` / ``--workers``, closed on exit."""
@@ -115,6 +124,7 @@ def _workers_line(workers) -> str:
 
 
 def cmd_campaign(args) -> int:
+    _check_cluster_flags(args)
     cfg = _campaign_config(args)
     if args.out:
         out = Path(args.out)
@@ -132,7 +142,7 @@ def cmd_campaign(args) -> int:
     overall = result.overall()
     stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
     print(f"{overall['runs']} scenarios: FAR {_rate(overall, 'far')}, MDR {_rate(overall, 'mdr')}{stalls}")
-    if len(result.workers):
+    if executor is not None and len(result.workers):  # in process, the one row is this process
         print(_workers_line(result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0

@@ -128,6 +128,15 @@ def _bad_fdd_file(tmp_path, small):
     return [small, "--fdd", path], [str(path), "not a text file"]
 
 
+def _tls_without_scheduler(tmp_path, small):
+    return [small, "--tls-cert", tmp_path / "cert.pem"], ["--tls-cert", "only used with --scheduler"]
+
+
+def _tls_with_local_workers(tmp_path, small):
+    return [small, "--workers", 2, "--tls-ca-file", tmp_path / "ca.pem"], ["--tls-ca-file",
+                                                                           "only used with --scheduler"]
+
+
 def _read_only(tmp_path, small, monkeypatch):
     def read_only(self, *args, **kwargs):
         raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
@@ -138,7 +147,7 @@ def _read_only(tmp_path, small, monkeypatch):
 
 CASES = {f.__name__[1:]: f for f in (_binary, _latin1, _missing, _out_onto_file, _seed, _scenarios, _chunk_size,
                                      _not_a_multiple, _settle, _manoeuvre_window, _onset, _empty_space,
-                                     _bad_fdd_file)}
+                                     _bad_fdd_file, _tls_without_scheduler, _tls_with_local_workers)}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -158,6 +167,13 @@ def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
     line = refused(capsys, "campaign", *args, "--out", tmp_path / "out")
     for text in named:
         assert text in line
+
+
+def test_an_in_process_campaign_prints_no_workers_line(small, tmp_path, capsys):
+    assert cli.main(["campaign", str(small), "--out", str(tmp_path / "c")]) == 0
+    out = capsys.readouterr().out
+    assert f"{N} scenarios: FAR " in out and "summary: " in out
+    assert "workers:" not in out
 
 
 def test_simulate_out_onto_a_file_is_refused_before_simulating(tmp_path, capsys):
