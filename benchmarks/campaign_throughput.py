@@ -221,8 +221,9 @@ def step_loop(comps: dict) -> dict:
 def hlo_stats(text: str, batch: int, n_steps: int) -> dict:
     """Fusions, copies and element-ops per scenario-step of the step loop of a compiled campaign program.
 
-    The step loop (:func:`step_loop`) carries plant, FDD and reduction states. ``element_ops`` counts one pass of its body per scenario; ``element_ops_total`` the
-    whole program (set-up, random numbers drawn outside the step loop, ...) per scenario-step.
+    The step loop (:func:`step_loop`) carries plant, FDD and reduction states. ``element_ops`` counts one pass of
+    its body per scenario; ``element_ops_total`` the whole program (set-up, random numbers drawn outside the step
+    loop, ...) per scenario-step.
     """
     comps = parse_hlo(text)
     step = step_loop(comps)
@@ -557,7 +558,8 @@ def ceiling_inputs(n: int, seed: int = 0) -> dict:
     coef = np.einsum("ijm,mn->ijn", np.asarray(bank.coef, np.float64), basis)  # (NM, 4, n)
     f32 = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
     return {
-        "amp": f32(rng.uniform(0.3, 1.0, n)), "t0": f32(rng.uniform(5.0, 25.0, n)), "dur": f32(rng.uniform(1.0, 3.0, n)),
+        "amp": f32(rng.uniform(0.3, 1.0, n)), "t0": f32(rng.uniform(5.0, 25.0, n)),
+        "dur": f32(rng.uniform(1.0, 3.0, n)),
         "kp_law": f32(rng.uniform(0.3, 0.6, n)), "ki_law": f32(rng.uniform(0.5, 1.0, n)),
         "load0": f32(rng.uniform(-3e3, 3e3, n)), "slope": f32(rng.uniform(-6e4, -2e4, n)),
         "lp": f32(rng.uniform(-2.0, -1.0, n)), "lda": f32(rng.uniform(3.0, 6.0, n)),

@@ -85,7 +85,8 @@ def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
                 continue
             checked += 1
             ra, rb = row[f"{rate}_a"], row[f"{rate}_b"]
-            inside = row[f"{rate}_lo_b"] <= ra <= row[f"{rate}_hi_b"] and row[f"{rate}_lo_a"] <= rb <= row[f"{rate}_hi_a"]
+            inside = (row[f"{rate}_lo_b"] <= ra <= row[f"{rate}_hi_b"]
+                      and row[f"{rate}_lo_a"] <= rb <= row[f"{rate}_hi_a"])
             if not inside:
                 problems.append(f"{row['group']} {row['stratum']} {rate}: {ra:.4g} [{row[f'{rate}_lo_a']:.4g}, "
                                 f"{row[f'{rate}_hi_a']:.4g}] vs {rb:.4g} [{row[f'{rate}_lo_b']:.4g}, "

@@ -185,7 +185,8 @@ def cmd_tune(args) -> int:
     result.save(out)
     for _, r in result.validation.iterrows():
         print(f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
-              f"{r['missed']}/{r['faulty_runs']}, detection time median {_num(r['detection_time_median_s'], unit=' s')}, stall "
+              f"{r['missed']}/{r['faulty_runs']}, detection time median "
+              f"{_num(r['detection_time_median_s'], unit=' s')}, stall "
               f"detector above tau outside stalls in {r['stall_detector_fires']} runs")
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
     return 0

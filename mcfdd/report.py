@@ -153,8 +153,8 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     for name, free, detect, scale in (
         ("loe_bank", df["loe_ratio0_max_pre"].where(ok), df["loe_others_min_peak"].where(faulty), 1.0),
         ("loe_detection", df["loe_ratio0_max_pre"].where(ok), df["loe_ratio0_max_post"].where(faulty), 1.0),
-        ("stall_detector", df["stall_theta_max_free"].where(ok & ~df["stall_seen"]), df["stall_theta_peak_min"].where(ok),
-         deg_per_m),
+        ("stall_detector", df["stall_theta_max_free"].where(ok & ~df["stall_seen"]),
+         df["stall_theta_peak_min"].where(ok), deg_per_m),
     ):
         tau_f, f_id = metrics.bound_with_witness(free.to_numpy() * scale, ids, "sup")
         tau_d, d_id = metrics.bound_with_witness(detect.to_numpy() * scale, ids, "inf")
@@ -205,19 +205,21 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
              "|---" * (12 if stalls else 9) + "|"]
     for _, r in summ.iterrows():
         label = r["label"] if r["stratum"] == "overall" else f"{r['stratum']}: {r['label']}"
-        stall_cells = (f" {r['stall_events']} "
-                       f"| {_stall_cell(r['stall_identified_signal'], r['stall_events'], r['stall_worst_latency_signal_s'])} "
-                       f"| {_stall_cell(r['stall_identified_model'], r['stall_events'], r['stall_worst_latency_model_s'])} |"
-                       if stalls else "")
+        stall_cells = (
+            f" {r['stall_events']} "
+            f"| {_stall_cell(r['stall_identified_signal'], r['stall_events'], r['stall_worst_latency_signal_s'])} "
+            f"| {_stall_cell(r['stall_identified_model'], r['stall_events'], r['stall_worst_latency_model_s'])} |"
+            if stalls else "")
         lines.append(
             f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
             f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
             f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
-            f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} "
-            f"| {_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
+            f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} | "
+            f"{_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
             f"| {_times(r['identification_time_median_s'], r['identification_time_max_s'])} |" + stall_cells)
     lines += ["", "## Detection bounds (eqs. 26-27)", "",
-              "| detector | tau_f | at scenario | tau_d | at scenario | gap tau_d - tau_f | units |", "|---|---|---|---|---|---|---|"]
+              "| detector | tau_f | at scenario | tau_d | at scenario | gap tau_d - tau_f | units |",
+              "|---|---|---|---|---|---|---|"]
     for _, r in gap.iterrows():
         lines.append(f"| {r['detector']} | {_fmt(r['tau_f'], 4)} | {r['tau_f_scenario_id']} | {_fmt(r['tau_d'], 4)} "
                      f"| {r['tau_d_scenario_id']} | {_fmt(r['gap'], 4)} | {r['units']} |")
@@ -273,7 +275,8 @@ def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value:
              f"{meta.get('git_revision')}.", "", f"| method | simulations | run time (s) | worst {value} | row |",
              "|---|---|---|---|---|"]
     for _, r in summ.iterrows():
-        lines.append(f"| {r['method']} | {r['simulations']} | {r['run_time_s']:.1f} | {_fmt(r[value], 5)} | {r['row']} |")
+        lines.append(f"| {r['method']} | {r['simulations']} | {r['run_time_s']:.1f} | {_fmt(r[value], 5)} | "
+                     f"{r['row']} |")
     rows = [int(r) for r in summ["row"] if r >= 0]
     lines += ["", "## Worst scenarios", "", "| parameter | " + " | ".join(summ["method"][summ["row"] >= 0]) + " |",
               "|---" * (len(rows) + 1) + "|"]
@@ -310,13 +313,15 @@ def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_
         ok = df["status"] == 0
         fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())
         row = {"fdd": label, **{k: overall[k] for k in (
-            "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo", "loe_far_hi",
+            "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo",
+            "loe_far_hi",
             "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_accuracy",
             "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
             "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
             "stall_worst_latency_model_s")}, "stall_detector_fires": fires,
-            "stall_late_or_missed": int((ok & ((df[f"stall_worst_latency_{identification}_s"] > stall_window_s)
-                                               | (df[f"stall_identified_{identification}"] < df["stall_events"]))).sum())}
+            "stall_late_or_missed": int((ok & (
+                (df[f"stall_worst_latency_{identification}_s"] > stall_window_s)
+                | (df[f"stall_identified_{identification}"] < df["stall_events"]))).sum())}
         for det in gap.index:
             for k in ("tau_f", "tau_d", "gap"):
                 row[f"{det}_{k}"] = gap.loc[det, k]
@@ -353,19 +358,21 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
               "|---" * (len(validation) + 1) + "|"]
     for name, cell in (
         ("runs", lambda r: str(r["runs"])),
-        ("FAR (any, incl. eta outside stall)", lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
+        ("FAR (any, incl. eta outside stall)",
+         lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
         ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
         ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
         ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
-        ("detection time median / p95 / max (s)", lambda r: _times(r["detection_time_median_s"],
-                                                                   r["detection_time_p95_s"], r["detection_time_max_s"])),
+        ("detection time median / p95 / max (s)",
+         lambda r: _times(r["detection_time_median_s"], r["detection_time_p95_s"], r["detection_time_max_s"])),
         ("stall detector above tau outside stall loads (runs)", lambda r: str(r["stall_detector_fires"])),
         ("eta = 1 outside stall loads (runs, signal)", lambda r: str(r["eta_false_alarms_signal"])),
         ("stall events identified, signal (worst latency s)", lambda r: f"{r['stall_identified_signal']} / "
          f"{r['stall_events']} ({_fmt(r['stall_worst_latency_signal_s'])})"),
         ("stall events identified, model (worst latency s)", lambda r: f"{r['stall_identified_model']} / "
          f"{r['stall_events']} ({_fmt(r['stall_worst_latency_model_s'])})"),
-        ("runs with a stall load identified late (after the stall window) or not", lambda r: str(r["stall_late_or_missed"])),
+        ("runs with a stall load identified late (after the stall window) or not",
+         lambda r: str(r["stall_late_or_missed"])),
         (f"{detector} tau_f / tau_d ({units}) / normalised gap", lambda r: " / ".join(
             _fmt(r[f"{'stall_detector' if detector == 'stall' else 'loe_bank'}_{k}"], 4)
             for k in ("tau_f", "tau_d", "normalised_gap"))),

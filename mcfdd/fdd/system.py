@@ -49,8 +49,10 @@ class LoeParams(NamedTuple):
     tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
     detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
     detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
-    excitation_floor: float  # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
-    excitation_load_fraction: float  # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
+    # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
+    excitation_floor: float
+    # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
+    excitation_load_fraction: float
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
@@ -188,7 +190,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal,
-                   model)
+    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi,
+                   signal, model)
     return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected, fault == 1, r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)

@@ -92,7 +92,8 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
     sweep = pd.DataFrame({"family": family, "fault_size": size, "detected_model": hist["prevailing_model"],
                           "detected_model_name": [names[m] if m >= 0 else "no decision" for m in
                                                   hist["prevailing_model"]],
-                          "first_fault_model": hist["first_model"], "detection_time_s": hist["detection_time_s"] - onset,
+                          "first_fault_model": hist["first_model"],
+                          "detection_time_s": hist["detection_time_s"] - onset,
                           "switches": hist["switches"]})
     meta = io.provenance(config.to_json(fig4_cfg), fig4_cfg.simulation.seed, models=list(names))
     bank, _ = load_bank(fig4_cfg.fdd, np.float32)

@@ -85,7 +85,8 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         "theta_u": fdd.theta_u, "load_fraction": fdd.load_fraction, "excited": fdd.excited,
         "decoded_model": fdd.decoded, "detected_model": fdd.detected, "fault_detected": fdd.fault_detected,
         "r_stall": fdd.r_stall,
-        "r_stall_deg": deg(fdd.r_stall), "theta_stall": fdd.theta_stall, "theta_stall_deg": deg(fdd.theta_stall), "iota_stall": fdd.iota_stall,
+        "r_stall_deg": deg(fdd.r_stall), "theta_stall": fdd.theta_stall, "theta_stall_deg": deg(fdd.theta_stall),
+        "iota_stall": fdd.iota_stall,
         "eta_stall": eta, "eta_signal": fdd.eta_signal, "eta_model": fdd.eta_model, "theta_sl": fdd.theta_sl,
     })
     t = np.arange(sim.n_steps) * sim.dt_s
@@ -125,7 +126,8 @@ class Histories:
             t = group["t_s"].to_numpy()
             first = {self.models[m]: float(t[detected == m][0]) for m in np.unique(detected) if m >= 0}
             rows.append({"run": name, "max_abs_delta_deg": group["delta_deg"].abs().max(),
-                         "stall_s": group["stall"].sum() * self.dt_s, "eta_stall_s": group["eta_stall"].sum() * self.dt_s,
+                         "stall_s": group["stall"].sum() * self.dt_s,
+                         "eta_stall_s": group["eta_stall"].sum() * self.dt_s,
                          "first_decisions_s": first})
         return pd.DataFrame(rows)
 
