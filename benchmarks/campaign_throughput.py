@@ -359,6 +359,14 @@ def is_event_time(column: str) -> bool:
     return column.endswith("_time_s") or "_latency_" in column
 
 
+def _plain(value):
+    """A table entry as JSON-ready Python: float32 times to their shortest decimal (4.2, not 4.199999809)."""
+    value = np.asarray(value)
+    if np.issubdtype(value.dtype, np.floating):
+        return [float(str(v)) for v in value.ravel()] if value.ndim else float(str(value))
+    return value.tolist()
+
+
 def compare(a: dict, b: dict) -> dict:
     """Outcomes of two runs column by column.
 
@@ -378,7 +386,7 @@ def compare(a: dict, b: dict) -> dict:
         else:
             same = (x == y) | (np.isnan(x) & np.isnan(y)) if floats else x == y
         for i in np.flatnonzero(~same.reshape(len(x), -1).all(axis=1)):
-            discrete.append({"column": k, "scenario": int(i), "values": [x[i].tolist(), y[i].tolist()]})
+            discrete.append({"column": k, "scenario": int(i), "values": [_plain(x[i]), _plain(y[i])]})
     return {"discrete": discrete, "continuous": continuous}
 
 
@@ -410,7 +418,7 @@ def decision_margins(p: Problem, scenario: int, n_steps: int):
 def nearest_decision(p: Problem, diff: dict, n_steps: int) -> dict | None:
     """For an event time that two runs put on different steps: the decision closest to its threshold in the
     steps that decide it (from the earlier time less its confirmation window to the later time)."""
-    if not diff["column"].endswith("_time_s"):
+    if not diff["column"].endswith("_time_s") or not np.isscalar(diff["values"][0]):
         return None
     times = [t for t in diff["values"] if np.isfinite(t)]
     if not times:
@@ -470,8 +478,8 @@ def check_lines(peer: dict) -> list[str]:
     for d in chk["discrete"]:
         a, b = d["values"]
         unit = " s" if is_event_time(d["column"]) else ""
-        text = f"  - {d['column']} of scenario {d['scenario']}: run_batch {a:.6g}{unit}, peer {b:.6g}{unit}"
-        if unit and np.isfinite(a) and np.isfinite(b):
+        text = f"  - {d['column']} of scenario {d['scenario']}: run_batch {a}{unit}, peer {b}{unit}"
+        if unit and np.isscalar(a) and np.isfinite([a, b]).all():
             text += f" ({abs(a - b) / peer['dt_s']:.0f} step(s))"
         near = d.get("nearest_decision")
         if near is not None:
