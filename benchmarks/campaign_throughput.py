@@ -37,6 +37,7 @@ constant (what the normals cost, the step's fusions unchanged).
     python benchmarks/campaign_throughput.py                                  # 4,096 x 6,000 and the peers
     python benchmarks/campaign_throughput.py --baseline /work/base-a96c20f    # and the revision before, same run
     python benchmarks/campaign_throughput.py --scenarios 1024 --steps 2000 --no-peer --no-breakdown
+    python benchmarks/campaign_throughput.py --family-chunks --rounds 1       # mixed against family-sorted chunks
 
 On a shared machine, ``--wait-quiet 600`` waits (up to 600 s) before each measurement until both
 cores have been idle for 10 s. The CPU/wall column (CPU time of the measuring process per second
@@ -633,8 +634,9 @@ def family_chunks(args):
             print(f"  {'sorted' if sort else 'mixed'}: first pass {r['first_pass_s']:.1f} s, runs "
                   f"{', '.join(f'{t:.2f}' for t in r['all_runs_s'])} s, load before {r['load_before'][0]:.2f}",
                   flush=True)
-    print("| chunks | programs | chunks run | padded scenarios | first pass incl. compile (s) | compile (s) | run (s) | "
-          "scenario-steps/s (run) | (first pass) | element-ops per scenario-step per program | table digest |")
+    print("| chunks | programs | chunks run | padded scenarios | first pass incl. compile (s) | compile (s) | "
+          "run (s) | scenario-steps/s (run) | (first pass) | element-ops per scenario-step per program | "
+          "table digest |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
     for r in rows:
         ops = ", ".join(f"{k}: {v:.0f}" for k, v in r["element_ops"].items())

@@ -85,7 +85,8 @@ def main(argv=None):
                 r = measure(checkout, args, folder)
                 rows.append((label, mode, r))
                 print(f"  {label} {mode}: {r}", flush=True)
-    print("| checkout | compile cache | start to set-up done (s) | compiles in config + set-up | start to first chunk (s) |")
+    print("| checkout | compile cache | start to set-up done (s) | compiles in config + set-up | "
+          "start to first chunk (s) |")
     print("|---|---|---:|---:|---:|")
     for label, mode, r in rows:
         print(f"| {label} | {mode} | {r['setup_s']:.1f} | {r['setup_compiles']} | {r['first_chunk_s']:.1f} |")
