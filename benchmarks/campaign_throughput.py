@@ -39,6 +39,7 @@ constant (what the normals cost, the step's fusions unchanged).
     python benchmarks/campaign_throughput.py                                  # 4,096 x 6,000 and the peers
     python benchmarks/campaign_throughput.py --baseline /work/base-a96c20f    # and the revision before, same run
     python benchmarks/campaign_throughput.py --scenarios 1024 --steps 2000 --no-peer --no-breakdown
+    python benchmarks/campaign_throughput.py --family-chunks --rounds 1       # mixed against family-sorted chunks
 
 On a shared machine, ``--wait-quiet 600`` waits (up to 600 s) before each measurement until both
 cores have been idle for 10 s. The CPU/wall column (CPU time of the measuring process per second
@@ -127,12 +128,24 @@ class Problem:
         """Padded scenarios, truths and keys of a chunk, as ``run_campaign`` builds them."""
         return campaign_runner.chunk_inputs(self.setup, self.c.seed, ids, size or self.size)
 
-    def run_chunk(self, ids, n_steps=None):
-        """One chunk as ``run_campaign`` runs it: gather, pad, run_batch, outcomes back to host arrays."""
+    def run_chunk(self, ids, n_steps=None, kinds=None, size=None):
+        """One chunk as ``run_campaign`` runs it: gather, pad, run_batch, outcomes back to host arrays.
+
+        ``kinds``: the manoeuvre families the chunk's program evaluates (default: all of the campaign's);
+        ``size``: the padded batch (default: the campaign's chunk size).
+        """
         s, c = self.setup, self.c
-        raw = campaign.run_batch(s.model, s.fdd_params, s.settings, *self.inputs(ids), n_steps or c.n_steps, c.dt_s,
-                                 c.substeps, s.kinds)
+        raw = campaign.run_batch(s.model, s.fdd_params, s.settings, *self.inputs(ids, size), n_steps or c.n_steps,
+                                 c.dt_s, c.substeps, kinds or s.kinds)
         return {k: np.asarray(v)[:len(ids)] for k, v in jax.block_until_ready(raw).items()}
+
+    def family_chunks(self):
+        """(kinds, ids, padded size) of chunks homogeneous in the manoeuvre family: each family's ids split by the
+        chunk size, each chunk padded only to its own multiple of LANE_BLOCK per device."""
+        family = campaign_runner.chunk_inputs(self.setup, self.c.seed, np.arange(self.n), self.n)[0].manoeuvre.kind
+        return [((code,), part, campaign_runner.chunk_size(len(part), len(part))) for code in self.setup.kinds
+                for ids in [np.flatnonzero(np.asarray(family) == code)]
+                for part in (ids[i:i + self.size] for i in range(0, len(ids), self.size))]
 
     def device_program(self):
         """Optimised HLO text of ``device_batch`` on HLO_BATCH scenarios x HLO_STEPS steps."""
@@ -311,6 +324,41 @@ def measure_pipeline(n_scenarios: int, n_steps: int, chunk_size: int, repeats: i
         "cpu_per_wall": best["cpu_per_wall"], "throughput": p.n * n_steps / best["run_s"],
         "rss_before_mb": rss_before, "peak_rss_mb": peak, **hlo_stats(p.device_program(), HLO_BATCH, HLO_STEPS),
     }
+
+
+def measure_families(n_scenarios: int, n_steps: int, chunk_size: int, repeats: int, sort: bool, save=None) -> dict:
+    """The campaign in chunks of mixed manoeuvre families (every chunk's program evaluates all four) or
+    sorted into chunks of one family (one program per family, each evaluating its own profile only).
+
+    Cold (no persistent compilation cache): the first pass compiles every program it needs. ``save``: a
+    path to write the scenario outcomes to (``.npz``), for comparing the two tables.
+    """
+    p = Problem(n_scenarios, n_steps, chunk_size)
+    chunks = p.family_chunks() if sort else [(p.setup.kinds, ids, p.size) for ids in p.chunks]
+    start = time.perf_counter()
+    tables = [(ids, p.run_chunk(ids, kinds=kinds, size=size)) for kinds, ids, size in chunks]
+    first = time.perf_counter() - start
+    passes = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for kinds, ids, size in chunks:
+            p.run_chunk(ids, kinds=kinds, size=size)
+        passes.append(time.perf_counter() - start)
+    order = np.argsort(np.concatenate([ids for ids, _ in tables]), kind="stable")
+    table = {k: np.concatenate([t[k] for _, t in tables])[order] for k in tables[0][1]}
+    digest = hashlib.sha1(b"".join(np.ascontiguousarray(v).tobytes() for _, v in sorted(table.items())))
+    if save:
+        np.savez(save, **table)
+    programs = sorted({(kinds, size) for kinds, _, size in chunks})
+    ops = {",".join(map(str, kinds)): hlo_stats(campaign.device_batch.lower(
+        p.setup.model, p.setup.fdd_params, p.setup.settings, *p.inputs(ids[:HLO_BATCH], HLO_BATCH), HLO_STEPS, p.c.dt_s,
+        p.c.substeps, kinds).compile().as_text(), HLO_BATCH, HLO_STEPS)["element_ops"]
+        for kinds, ids in {kinds: ids for kinds, ids, _ in chunks}.items()}
+    return {"kind": "families", "sort": sort, "scenarios": p.n, "steps": n_steps, "chunks": len(chunks),
+            "padded": sum(size for _, _, size in chunks),
+            "programs": len(programs), "first_pass_s": first, "run_s": min(passes), "all_runs_s": passes,
+            "compile_s": first - min(passes), "throughput": p.n * n_steps / min(passes),
+            "overall": p.n * n_steps / first, "element_ops": ops, "table_digest": digest.hexdigest()[:12]}
 
 
 def peer_functions(p: Problem, n_steps: int):
@@ -610,6 +658,9 @@ def worker(spec: dict) -> dict:
         result = measure_pipeline(spec["scenarios"], spec["steps"], spec["chunk_size"], spec["repeats"])
     elif kind == "breakdown":
         result = measure_breakdown(spec["scenarios"], spec["steps"], spec["repeats"])
+    elif kind == "families":
+        result = measure_families(spec["scenarios"], spec["steps"], spec["chunk_size"], spec["repeats"], spec["sort"],
+                                  spec["save"])
     elif kind == "ceiling":
         result = measure_ceiling(spec["scenarios"], spec["steps"], spec["repeats"], spec["fast_math"])
     else:
@@ -668,6 +719,46 @@ def _pipeline_line(label: str, r: dict) -> str:
             f"{r['startup_s']:.1f} | {r['setup_compiles']} | {r['peak_rss_mb']:.0f} |")
 
 
+def family_chunks(args):
+    """Mixed against family-sorted chunks, alternating ``--rounds`` times, each in a fresh process (cold compile)."""
+    print(f"{args.scenarios:,} scenarios x {args.steps:,} steps, chunks of {args.chunk_size}, float32, "
+          f"{jax.device_count()} device(s); load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    rows, saved = [], {}
+    work = tempfile.mkdtemp()
+    for _ in range(args.rounds):
+        for sort in (False, True):
+            saved[sort] = os.path.join(work, f"sort{int(sort)}.npz")
+            r = spawn({"kind": "families", "scenarios": args.scenarios, "steps": args.steps,
+                       "chunk_size": args.chunk_size, "repeats": args.repeats, "sort": sort, "save": saved[sort]},
+                      args.wait_quiet)
+            rows.append(r)
+            print(f"  {'sorted' if sort else 'mixed'}: first pass {r['first_pass_s']:.1f} s, runs "
+                  f"{', '.join(f'{t:.2f}' for t in r['all_runs_s'])} s, load before {r['load_before'][0]:.2f}",
+                  flush=True)
+    print("| chunks | programs | chunks run | padded scenarios | first pass incl. compile (s) | compile (s) | "
+          "run (s) | scenario-steps/s (run) | (first pass) | element-ops per scenario-step per program | "
+          "table digest |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|")
+    for r in rows:
+        ops = ", ".join(f"{k}: {v:.0f}" for k, v in r["element_ops"].items())
+        print(f"| {'sorted by family' if r['sort'] else 'mixed'} | {r['programs']} | {r['chunks']} | {r['padded']} | "
+              f"{r['first_pass_s']:.1f} | {r['compile_s']:.1f} | {r['run_s']:.2f} | {r['throughput']:.3g} | "
+              f"{r['overall']:.3g} | {ops} | {r['table_digest']} |")
+    mixed, sorted_ = np.load(saved[False]), np.load(saved[True])
+    for name in mixed.files:
+        x, y = mixed[name], sorted_[name]
+        if not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+            if x.dtype.kind == "f":
+                both = np.isfinite(x) & np.isfinite(y)
+                rel = np.abs(x[both] - y[both]) / np.maximum(np.abs(x[both]), 1e-30)
+                print(f"  {name}: {int((x != y).sum())} of {x.size} values differ, largest relative "
+                      f"{rel.max() if rel.size else 0.0:.2g}, non-finite pattern "
+                      f"{'same' if np.array_equal(np.isfinite(x), np.isfinite(y)) else 'differs'}")
+            else:
+                print(f"  {name}: {int((x != y).sum())} of {x.size} values differ (discrete)")
+    print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", type=int, default=4096, help="scenarios of the pipeline (default 4096)")
@@ -687,6 +778,8 @@ def main(argv=None):
                         help="only show what optimization_barrier and mcfdd.compute.once do to a toy step's fusions")
     parser.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
                         help="before each measurement wait up to S seconds for idle cores (shared machines)")
+    parser.add_argument("--family-chunks", action="store_true",
+                        help="only compare chunks of mixed manoeuvre families with chunks sorted by family")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
@@ -697,6 +790,9 @@ def main(argv=None):
         print("|---|---:|---:|---|")
         for r in barrier_check():
             print(f"| {r['variant']} | {r['fusions']} | {r['element_ops']:.0f} | {r['barrier_in_optimised_hlo']} |")
+        return
+    if args.family_chunks:
+        family_chunks(args)
         return
     if args.baseline is not None and not (args.baseline / "mcfdd" / "__init__.py").is_file():
         raise SystemExit(f"--baseline: {args.baseline} holds no mcfdd package")

@@ -2,6 +2,8 @@
 
 import concurrent.futures
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +14,7 @@ from scipy.stats import binomtest
 import mcfdd
 from mcfdd import cli, config, io
 from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
-from mcfdd.workflows.common import load_bank
+from mcfdd.workflows.common import load_bank, precision
 
 SMALL = """
 [campaign]
@@ -332,6 +334,48 @@ def test_designs_respect_the_mach_limit_and_grid_axes():
     grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4), scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
     cols, n = scenarios.design_table(grid, 1, "grid", seed=0, max_mach=0.82)
     assert n < 8 and set(cols["altitude_m"]) == {0.0, 12000.0}
+
+
+def test_design_does_not_depend_on_the_jax_precision(tmp_path):
+    """The design (Mach limit included) is NumPy float64: the same columns whatever JAX's precision,
+    so a resumed campaign's parts are checked against it without the campaign's precision context."""
+    cfg = mcfdd.load_config(write_config(tmp_path, n=80), "campaign",
+                            overrides={"space.vcas_kt": [200.0, 420.0], "space.altitude_m": [0.0, 12000.0]})
+    ids = np.arange(0, 80, 3)
+    with precision("float32"):
+        single = build.design_chunk(cfg, build.design_plan(cfg), ids)
+    with precision("float64"):
+        double = build.design_chunk(cfg, build.design_plan(cfg), ids)
+    capped = scenarios.mach_limit_speed_kt(single["altitude_m"], cfg.plant.aircraft.max_mach) < 420.0
+    assert capped.sum() > len(ids) // 2  # rows whose speed range the Mach limit cuts
+    for column, values in single.items():
+        np.testing.assert_array_equal(values, double[column], err_msg=column)
+
+
+SETUP_COMPILES = """
+import sys
+import numpy as np
+import mcfdd
+from mcfdd.workflows import campaign as runner
+from mcfdd.workflows.common import CompileCounter, precision
+
+with CompileCounter() as counter:
+    cfg = mcfdd.load_config(sys.argv[1], "campaign")
+    with precision(cfg.campaign.precision):
+        setup = runner.campaign_setup(cfg)
+        size = runner.chunk_size(cfg.campaign.chunk_size, setup.n)
+        runner.chunk_inputs(setup, cfg.campaign.seed, np.arange(min(size, setup.n)), size)
+print(counter.count)
+"""
+
+
+@pytest.mark.parametrize("name", ["loe_campaign.toml", "rcam_campaign.toml"])
+def test_campaign_setup_compiles_one_program(name):
+    """From the config to the first chunk's inputs (validation, plant, hinge table, bank, design plan with its
+    Mach limit, scenarios, run keys), a fresh process compiles one program: the run keys' (about 85 before)."""
+    out = subprocess.run([sys.executable, "-c", SETUP_COMPILES, str(FAULT_FREE.parent / name)], capture_output=True,
+                         text=True, check=True)
+    assert int(out.stdout) == 1
 
 
 def test_true_model_brackets():

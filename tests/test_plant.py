@@ -282,6 +282,27 @@ def test_hinge_table_matches_formula(model):
     assert np.abs(np.asarray(tabulated - formula)).max() <= 5e-3 * np.abs(np.asarray(table.load_n)).max()
 
 
+def test_set_up_formulas_run_in_numpy_and_agree_with_the_traced_ones(model):
+    """On host numbers the atmosphere, trim and hinge formulas compute in NumPy (nothing compiled);
+    traced they compute in jax.numpy; both give the same numbers (float64)."""
+    rng = np.random.default_rng(1)
+    vcas, alt = rng.uniform(40.0, 220.0, 64), rng.uniform(0.0, 15000.0, 64)
+
+    def formulas(v, h):
+        qbar, mach, tas = atmosphere.flight_condition(v, h)
+        alpha = aircraft.trim_alpha(model.aircraft, qbar)
+        return (qbar, mach, tas, atmosphere.calibrated_airspeed(mach, h), alpha,
+                hinge.hinge_load(hinge.HingeSurface(), ACT.r_arm_m, qbar, alpha, 0.1), *atmosphere.isa(h))
+
+    host = formulas(vcas, alt)
+    traced = jax.jit(formulas)(vcas, alt)
+    for a, b in zip(host, traced):
+        assert type(a) is np.ndarray and a.dtype == np.float64 and isinstance(b, jax.Array)
+        np.testing.assert_allclose(a, np.asarray(b), rtol=1e-12)
+    np.testing.assert_allclose(host[3], vcas, rtol=1e-10)
+    assert isinstance(model.table.load_n, jax.Array) and model.table.load_n.shape == (37, 27, 51)
+
+
 # ---------------------------------------------------------------------------------------------
 # Dryden turbulence
 

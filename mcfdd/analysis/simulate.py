@@ -11,6 +11,7 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mcfdd.analysis import noise
 from mcfdd.fdd import system
@@ -18,9 +19,14 @@ from mcfdd.plant import closed_loop
 
 
 def run_keys(seed: int, indices):
-    """Per-run random keys, ``fold_in(key(seed), index)``."""
+    """Per-run random keys, ``fold_in(key(seed), index)``: one compiled program per seed and batch size."""
+    return _run_keys(np.asarray(indices, dtype=np.uint32), seed=seed)
+
+
+@partial(jax.jit, static_argnames="seed")
+def _run_keys(indices, seed: int):
     base = jax.random.key(seed)
-    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices, dtype=jnp.uint32))
+    return jax.vmap(lambda i: jax.random.fold_in(base, i))(indices)
 
 
 def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -83,8 +84,8 @@ def constant_coefficients(k_1_s: float) -> np.ndarray:
 
 
 def make_bank(coefficients, nu, k0, norm: Normalisation = Normalisation(), dtype=np.float32) -> GainBank:
-    return GainBank(jnp.asarray(np.asarray(coefficients), dtype), jnp.asarray(np.asarray(nu), dtype),
-                    jnp.asarray(np.asarray(k0), dtype), norm)
+    arrays = jax.device_put(tuple(np.asarray(a, dtype) for a in (coefficients, nu, k0)))  # no compile, unlike jnp
+    return GainBank(*arrays, norm)
 
 
 def to_dict(bank: GainBank, names, extra: dict | None = None) -> dict:

@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import array_module
 from mcfdd.plant.atmosphere import G0_M_S2
 
 
@@ -48,7 +49,7 @@ class RollState(NamedTuple):
 def trim_alpha(params: AircraftParams, qbar_pa):
     """Wing angle of attack from the zero-lift line in level flight (rad), capped at max_alpha."""
     cl = params.mass_kg * G0_M_S2 / (qbar_pa * params.wing_area_m2)
-    return jnp.minimum(cl / params.cl_alpha_per_rad, params.max_alpha_rad)
+    return array_module(cl).minimum(cl / params.cl_alpha_per_rad, params.max_alpha_rad)
 
 
 def effective_aileron(params: AircraftParams, delta_monitored_rad, delta_command_rad, nu2):

@@ -8,13 +8,16 @@ relation:
     M  = sqrt(5 ((qc / p + 1)^(2/7) - 1))
     qbar = 0.7 p M^2
 
-All functions take and return SI units (m, m/s, Pa, K) and broadcast over arrays.
+All functions take and return SI units (m, m/s, Pa, K) and broadcast over arrays. They compute
+with ``jax.numpy`` on JAX arrays (traced in the step) and with NumPy on host numbers (the set-up:
+the hinge table, the design's Mach limit, configuration checks), so the set-up compiles nothing.
 """
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
+
+from mcfdd.compute import array_module
 
 P0_PA = 101325.0
 T0_K = 288.15
@@ -35,31 +38,34 @@ def isa(altitude_m):
     Returns (temperature K, pressure Pa, density kg/m^3, speed of sound m/s), each shaped like
     ``altitude_m``.
     """
-    h = jnp.asarray(altitude_m)
+    xp = array_module(altitude_m)
+    h = xp.asarray(altitude_m)
     t_trop = T0_K - LAPSE_K_M * TROPOPAUSE_M
-    temperature = jnp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
+    temperature = xp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
     exponent = G0_M_S2 / (R_J_KG_K * LAPSE_K_M)
     p_trop = P0_PA * (t_trop / T0_K) ** exponent
-    pressure = jnp.where(
+    pressure = xp.where(
         h < TROPOPAUSE_M,
         P0_PA * (temperature / T0_K) ** exponent,
-        p_trop * jnp.exp(-G0_M_S2 * (h - TROPOPAUSE_M) / (R_J_KG_K * t_trop)),
+        p_trop * xp.exp(-G0_M_S2 * (h - TROPOPAUSE_M) / (R_J_KG_K * t_trop)),
     )
     density = pressure / (R_J_KG_K * temperature)
-    sound = jnp.sqrt(GAMMA * R_J_KG_K * temperature)
+    sound = xp.sqrt(GAMMA * R_J_KG_K * temperature)
     return temperature, pressure, density, sound
 
 
 def impact_pressure(vcas_m_s):
     """Pitot impact pressure qc (Pa) of a calibrated airspeed, subsonic."""
-    return P0_PA * ((1.0 + 0.2 * (jnp.asarray(vcas_m_s) / A0_M_S) ** 2) ** 3.5 - 1.0)
+    v = array_module(vcas_m_s).asarray(vcas_m_s)
+    return P0_PA * ((1.0 + 0.2 * (v / A0_M_S) ** 2) ** 3.5 - 1.0)
 
 
 def mach(vcas_m_s, altitude_m):
     """Mach number of a calibrated airspeed (m/s) at a pressure altitude (m)."""
     _, pressure, _, _ = isa(altitude_m)
     qc = impact_pressure(vcas_m_s)
-    return jnp.sqrt(5.0 * ((qc / pressure + 1.0) ** (2.0 / 7.0) - 1.0))
+    ratio = qc / pressure + 1.0
+    return array_module(ratio).sqrt(5.0 * (ratio ** (2.0 / 7.0) - 1.0))
 
 
 def below_mach(vcas_m_s, altitude_m, max_mach: float):
@@ -75,8 +81,9 @@ def calibrated_airspeed(mach_number, altitude_m):
 
 def calibrated_airspeed_at_pressure(mach_number, pressure_pa):
     """Calibrated airspeed (m/s) of a Mach number at a static pressure (Pa)."""
-    qc = pressure_pa * ((1.0 + 0.2 * jnp.asarray(mach_number) ** 2) ** 3.5 - 1.0)
-    return A0_M_S * jnp.sqrt(5.0 * ((qc / P0_PA + 1.0) ** (2.0 / 7.0) - 1.0))
+    xp = array_module(mach_number, pressure_pa)
+    qc = pressure_pa * ((1.0 + 0.2 * xp.asarray(mach_number) ** 2) ** 3.5 - 1.0)
+    return A0_M_S * xp.sqrt(5.0 * ((qc / P0_PA + 1.0) ** (2.0 / 7.0) - 1.0))
 
 
 def flight_condition(vcas_m_s, altitude_m):

@@ -27,6 +27,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 
 from mcfdd.compute import ONE, once
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, rcam_loop, turbulence
@@ -101,8 +102,8 @@ def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircr
     max_delta = actuator_params.max_deflection_rad
     table = hinge.build_table(
         surface, actuator_params.r_arm_m, lambda qbar: aircraft.trim_alpha(aircraft_params, qbar),
-        jnp.linspace(*vcas_range_m_s, grid[0]), jnp.linspace(*altitude_range_m, grid[1]),
-        jnp.linspace(-max_delta, max_delta, grid[2]))
+        np.linspace(*vcas_range_m_s, grid[0]), np.linspace(*altitude_range_m, grid[1]),
+        np.linspace(-max_delta, max_delta, grid[2]))
     if aircraft_model == "rcam":
         return rcam_loop.build_model(actuator_params, aircraft_params, law_params, surface, table)
     return PlantModel(actuator_params, aircraft_params, law_params, table)

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mcfdd.plant import atmosphere
 
@@ -48,12 +50,14 @@ def build_table(surface: HingeSurface, r_arm_m, alpha_of_qbar, vcas_m_s, altitud
     """Tabulate the hinge load on uniform grids.
 
     ``alpha_of_qbar`` maps dynamic pressure (Pa) to the wing's trim angle of attack (rad); the grids
-    are 1-D, uniformly spaced arrays. Returns a :class:`HingeTable`.
+    are 1-D, uniformly spaced arrays. The table is computed in NumPy float64 (nothing compiled)
+    and moved to the device once, at JAX's default float. Returns a :class:`HingeTable`.
     """
-    v, h, d = jnp.meshgrid(vcas_m_s, altitude_m, delta_rad, indexing="ij")
+    grids = [np.asarray(g, dtype=np.float64) for g in (vcas_m_s, altitude_m, delta_rad)]
+    v, h, d = np.meshgrid(*grids, indexing="ij")
     qbar = atmosphere.dynamic_pressure(v, h)
     load = hinge_load(surface, r_arm_m, qbar, alpha_of_qbar(qbar), d)
-    return HingeTable(jnp.asarray(vcas_m_s), jnp.asarray(altitude_m), jnp.asarray(delta_rad), load)
+    return HingeTable(*jax.device_put((*grids, load)))
 
 
 def _cell(grid, value):

@@ -471,9 +471,8 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile
     n, names = setup.n, setup.names
     if out is not None:
         _prepare_dir(out, cfg, resume)
-    with precision(c.precision):  # the design's Mach limit is computed at the campaign's precision
-        frames, labels, done = _read_parts(out / "scenarios", setup) if out is not None and resume else (
-            [], [], np.zeros(n, dtype=bool))
+    frames, labels, done = _read_parts(out / "scenarios", setup) if out is not None and resume else (
+        [], [], np.zeros(n, dtype=bool))
     todo = np.flatnonzero(~done)
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]

@@ -57,8 +57,9 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",
              progress)
         start = time.perf_counter()
-        plant, fdd = jax.block_until_ready(
-            simulate.fdd_batch(model, fdd_params, scenarios, keys, sim.n_steps, sim.dt_s, sim.substeps, kinds))
+        # on the host at once: indexing and scaling them as JAX arrays would compile a program per operation
+        plant, fdd = jax.tree.map(np.asarray, simulate.fdd_batch(model, fdd_params, scenarios, keys, sim.n_steps,
+                                                                 sim.dt_s, sim.substeps, kinds))
         note(f"  done in {time.perf_counter() - start:.1f} s (compilation included)", progress)
     r_arm = model.actuator.r_arm_m
     to_deg = 180.0 / math.pi
