@@ -414,8 +414,14 @@ def test_gated_filters_restart_from_equilibrium(bank):
     r, theta, theta_u = (np.asarray(x) for x in jax.jit(run)(system.init(params, u[0]), u_c, u, 0.0))
     assert np.all(r[gated] == 0.0) and np.all(r[reopen] == 0.0)
 
-    def fresh_start(i):  # filters in equilibrium at u[i], evaluators holding what they had
-        state = system.init(params, u[i])._replace(bank_xi=jnp.asarray(theta[i]), band_xi=jnp.asarray(theta_u[i]))
+    phi_d = np.exp(-params.loe.direction_pole * DT_S)
+    error_lp = np.zeros(n + 1)  # the direction's low-pass of u_c - u, samples before i
+    for i in range(n):
+        error_lp[i + 1] = phi_d * error_lp[i] + (1.0 - phi_d) * (u_c[i] - u[i])
+
+    def fresh_start(i):  # filters in equilibrium at u[i], evaluators and the direction holding what they had
+        state = system.init(params, u[i])._replace(bank_xi=jnp.asarray(theta[i]), band_xi=jnp.asarray(theta_u[i]),
+                                                   error_lp=jnp.asarray(error_lp[i]))
         return (np.asarray(x) for x in jax.jit(run)(state, u_c[i:], u[i:], i * DT_S))
 
     r2, theta2, theta_u2 = fresh_start(reopen)
@@ -456,7 +462,7 @@ def test_signature_and_threshold_direction():
 
 def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
     """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
-    the sample's (u, sgn(u_c - u)): the signature of system.step against numpy, and f = 0 is constant tau."""
+    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step against numpy, and f = 0 is constant tau."""
     n = 400
     u_c = smooth_command(n)
     gain = eq4_gains(bank, VCAS_M_S, ALT_M)
@@ -474,8 +480,10 @@ def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
         theta, theta_u, iota = (np.asarray(x) for x in jax.jit(lambda: jax.lax.scan(
             body, system.init(params, u[0]), (u_c, u[:-1], np.arange(n) * DT_S))[1])())
         expect = np.empty_like(iota)
+        phi_d, error_lp = math.exp(-params.loe.direction_pole * DT_S), 0.0
         for i in range(n):
-            k = gain(u[i], np.sign(u_c[i] - u[i]))
+            k = gain(u[i], np.sign(error_lp))  # sgn(xdot): the low-passed error of the samples before
+            error_lp = phi_d * error_lp + (1.0 - phi_d) * (u_c[i] - u[i])
             d = np.array([[thresholds.hinf_distance(a, b) * (a + b) / k0[ia] if ia != ib else np.inf
                            for ib, b in enumerate(k)] for ia, a in enumerate(k)])
             expect[i] = theta[i] >= np.maximum(0.02, f * d.min(axis=1)) * theta_u[i]
@@ -611,7 +619,8 @@ def test_model_rule(k):
 
 @jax.jit
 def fdd_on_lpv_model(params, model, u_c):
-    """system.step scanned over a ZOH-sampled LPV plant of bank ``model``, from rest -> detected ids."""
+    """system.step scanned over a ZOH-sampled LPV plant of bank ``model`` (its sgn(xdot) the bank's estimate), from rest
+    -> detected ids."""
     fdd_on_lpv_model.traces += 1
     bank = params.loe.bank
     t = jnp.arange(u_c.shape[0]) * DT_S
@@ -619,7 +628,7 @@ def fdd_on_lpv_model(params, model, u_c):
     def body(carry, inp):
         u, state = carry
         c, t_n = inp
-        k = lpv.gains(bank, u, jnp.sign(c - u), VCAS_M_S, ALT_M)[model]
+        k = lpv.gains(bank, u, jnp.sign(state.error_lp), VCAS_M_S, ALT_M)[model]  # the bank's sgn(xdot): model exact
         state, out = system.step(params, state, c, u, VCAS_M_S, ALT_M, t_n, DT_S)
         phi = jnp.exp(-k * DT_S)
         return (phi * u + (1.0 - phi) * c, state), out.detected
