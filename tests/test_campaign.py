@@ -64,7 +64,7 @@ def scenario_table(out: Path) -> pd.DataFrame:
 FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
-ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.confirm_s": 0.0,
+ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.confirm_s": 0.0,
             "fdd.loe.excitation_floor_deg": 0.005}
 N_SHORT = 320
 
