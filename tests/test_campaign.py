@@ -213,7 +213,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
              .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
-             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n")
+             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n"
+             "detection_contrast = 0.0\n")
     path = tmp_path / "harsh.toml"
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)
