@@ -355,8 +355,8 @@ class LoeDetectionConfig(Section):
     Defaults are tuned for 0.05 mm position-sensor noise (see README): the paper's evaluator
     (alpha = 0, beta = 1, gamma = 0.1) averages sensor noise over 10 s against manoeuvre
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
-    Two levels: detection (``detection_tau``, ``detection_confirm_s``: the fault-free model
-    rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
+    Two levels: detection (``detection_tau``, ``detection_contrast``, ``detection_confirm_s``: the
+    fault-free model rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
