@@ -355,11 +355,14 @@ class LoeDetectionConfig(Section):
     Defaults are tuned for 0.05 mm position-sensor noise (see README): the paper's evaluator
     (alpha = 0, beta = 1, gamma = 0.1) averages sensor noise over 10 s against manoeuvre
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
-    Two levels: detection (``detection_tau``, ``detection_confirm_s``: the fault-free model
-    rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
+    Two levels: detection (``detection_tau``, ``detection_contrast``, ``detection_confirm_s``: the
+    fault-free model rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
+    direction_pole_1_s: float = spec(20.0, lo=0.0, lo_open=True, hi=1e4, doc="sgn(xdot) of the LPV gains is the "
+                                     "sign of the measured tracking error low-passed with this pole, up to the "
+                                     "previous sample (so it does not rectify the current sample's sensor noise)")
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=0.0, beta=1.0, gamma_1_s=1.0))
     tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0,
                       doc="threshold on theta_i / ||u||, about the relative gain mismatch |k_j - k_i| / k0_i")
@@ -369,6 +372,10 @@ class LoeDetectionConfig(Section):
     detection_tau: float = spec(0.1, lo=0.0, lo_open=True, hi=10.0, doc="detection: the fault-free model is "
                                 "rejected while theta_0 / ||u|| is above this and ||u|| above the excitation floor")
     detection_confirm_s: float = spec(0.5, lo=0.0, hi=60.0, doc="detection: the rejection must persist this long")
+    detection_contrast: float = spec(0.05, lo=0.0, hi=10.0, doc="detection: the fault-free model is rejected only "
+                                     "while theta_0 / ||u|| is also this far above the smallest ratio of the fault "
+                                     "models (a fault model explains the rod better; sensor noise at the excitation "
+                                     "floor raises all ratios alike)")
     excitation_floor_deg: float = spec(0.15, lo=0.0, doc="no decision (detection or identification) while ||u|| "
                                        "(the evaluated low-passed |u_c - u|) is below this: sensor noise alone gives "
                                        "about 0.8 x its RMS (0.06 deg at 0.07 mm)")

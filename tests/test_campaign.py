@@ -66,7 +66,7 @@ def scenario_table(out: Path) -> pd.DataFrame:
 FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
-ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.confirm_s": 0.0,
+ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.confirm_s": 0.0,
             "fdd.loe.excitation_floor_deg": 0.005}
 N_SHORT = 320
 
@@ -215,7 +215,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
              .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
-             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n")
+             + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n"
+             "detection_contrast = 0.0\n")
     path = tmp_path / "harsh.toml"
     path.write_text(harsh)
     cfg = config.load(config.CampaignConfig, path)

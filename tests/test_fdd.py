@@ -414,8 +414,14 @@ def test_gated_filters_restart_from_equilibrium(bank):
     r, theta, theta_u = (np.asarray(x) for x in jax.jit(run)(system.init(params, u[0]), u_c, u, 0.0))
     assert np.all(r[gated] == 0.0) and np.all(r[reopen] == 0.0)
 
-    def fresh_start(i):  # filters in equilibrium at u[i], evaluators holding what they had
-        state = system.init(params, u[i])._replace(bank_xi=jnp.asarray(theta[i]), band_xi=jnp.asarray(theta_u[i]))
+    phi_d = np.exp(-params.loe.direction_pole * DT_S)
+    error_lp = np.zeros(n + 1)  # the direction's low-pass of u_c - u, samples before i
+    for i in range(n):
+        error_lp[i + 1] = phi_d * error_lp[i] + (1.0 - phi_d) * (u_c[i] - u[i])
+
+    def fresh_start(i):  # filters in equilibrium at u[i], evaluators and the direction holding what they had
+        state = system.init(params, u[i])._replace(bank_xi=jnp.asarray(theta[i]), band_xi=jnp.asarray(theta_u[i]),
+                                                   error_lp=jnp.asarray(error_lp[i]))
         return (np.asarray(x) for x in jax.jit(run)(state, u_c[i:], u[i:], i * DT_S))
 
     r2, theta2, theta_u2 = fresh_start(reopen)
@@ -456,7 +462,7 @@ def test_signature_and_threshold_direction():
 
 def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
     """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
-    the sample's (u, sgn(u_c - u)): the signature of system.step against numpy, and f = 0 is constant tau."""
+    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step against numpy, and f = 0 is constant tau."""
     n = 400
     u_c = smooth_command(n)
     gain = eq4_gains(bank, VCAS_M_S, ALT_M)
@@ -474,8 +480,10 @@ def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
         theta, theta_u, iota = (np.asarray(x) for x in jax.jit(lambda: jax.lax.scan(
             body, system.init(params, u[0]), (u_c, u[:-1], np.arange(n) * DT_S))[1])())
         expect = np.empty_like(iota)
+        phi_d, error_lp = math.exp(-params.loe.direction_pole * DT_S), 0.0
         for i in range(n):
-            k = gain(u[i], np.sign(u_c[i] - u[i]))
+            k = gain(u[i], np.sign(error_lp))  # sgn(xdot): the low-passed error of the samples before
+            error_lp = phi_d * error_lp + (1.0 - phi_d) * (u_c[i] - u[i])
             d = np.array([[thresholds.hinf_distance(a, b) * (a + b) / k0[ia] if ia != ib else np.inf
                            for ib, b in enumerate(k)] for ia, a in enumerate(k)])
             expect[i] = theta[i] >= np.maximum(0.02, f * d.min(axis=1)) * theta_u[i]
@@ -611,7 +619,8 @@ def test_model_rule(k):
 
 @jax.jit
 def fdd_on_lpv_model(params, model, u_c):
-    """system.step scanned over a ZOH-sampled LPV plant of bank ``model``, from rest -> detected ids."""
+    """system.step scanned over a ZOH-sampled LPV plant of bank ``model`` (its sgn(xdot) the bank's estimate), from rest
+    -> detected ids."""
     fdd_on_lpv_model.traces += 1
     bank = params.loe.bank
     t = jnp.arange(u_c.shape[0]) * DT_S
@@ -619,7 +628,7 @@ def fdd_on_lpv_model(params, model, u_c):
     def body(carry, inp):
         u, state = carry
         c, t_n = inp
-        k = lpv.gains(bank, u, jnp.sign(c - u), VCAS_M_S, ALT_M)[model]
+        k = lpv.gains(bank, u, jnp.sign(state.error_lp), VCAS_M_S, ALT_M)[model]  # the bank's sgn(xdot): model exact
         state, out = system.step(params, state, c, u, VCAS_M_S, ALT_M, t_n, DT_S)
         phi = jnp.exp(-k * DT_S)
         return (phi * u + (1.0 - phi) * c, state), out.detected
@@ -689,3 +698,72 @@ def test_load_weighted_excitation(bank):
     np.testing.assert_array_equal(out.theta_u, outs[0.0].theta_u)
     np.testing.assert_array_equal(outs[0.0].theta_w, outs[0.0].theta_u)
     assert (outs[0.0].excited & ~out.excited).any() and not (out.excited & ~outs[0.0].excited).any()
+
+
+def noisy_hold(bank, model, n=1500, dither_deg=0.1, seed=5):
+    """A rod of bank ``model`` (true sgn(u_c - x)) holding 15 deg (load fraction 0.41 at this flight point) under
+    a small dither, measured with 0.06 mm of white sensor noise: (u_c, measured u) of n samples."""
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    t = np.arange(n) * DT_S
+    u_c = (15.0 + dither_deg * np.sin(2 * np.pi * 0.5 * t)) * DEG_M
+    x = [u_c[0]]
+    for c in u_c[:-1]:
+        phi = math.exp(-gain(x[-1], np.sign(c - x[-1]))[model] * DT_S)
+        x.append(phi * x[-1] + (1.0 - phi) * c)
+    return u_c, np.array(x) + np.random.default_rng(seed).standard_normal(n) * 0.06e-3
+
+
+def run_system(params, u_c, u):
+    """system.step scanned over (u_c, u) at the test's flight point -> (theta, theta_u, fault_detected)."""
+    def body(state, inp):
+        c, m, t = inp
+        state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+        return state, (out.theta, out.theta_u, out.fault_detected)
+    return (np.asarray(v) for v in jax.jit(lambda: jax.lax.scan(
+        body, system.init(params, u[0]), (u_c, u, np.arange(u_c.size) * DT_S))[1])())
+
+
+def test_direction_estimate_does_not_rectify_sensor_noise(bank):
+    """On a fault-free rod holding a deflection at 41 % load with the tracking error inside the sensor noise,
+    the bank's sgn(xdot) (the low-passed error of the samples before) leaves the fault-free filter no bias
+    over the no-load model's (both see the noise alike), while filters of eq. (24) written here in numpy with
+    the sign of the current sample's u_c - u rectify the noise through the load-dependent gain: the
+    fault-free ratio several times the no-load model's, as on a disconnected rod."""
+    u_c, u = noisy_hold(bank, 0)
+    params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0)), bank, r_arm_m=R_ARM_M)
+    theta, theta_u, _ = run_system(params, u_c, u)
+    tail = slice(500, None)
+    ratio = theta[tail] / theta_u[tail, None]
+    assert np.all(np.isfinite(ratio)) and ratio[:, 0].max() < 0.1
+    assert ratio[:, 0].mean() < 1.25 * ratio[:, 1].mean()
+
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    k0 = np.asarray(bank.k0)
+    phi_a, phi_g = math.exp(-params.loe.pole * DT_S), math.exp(-1.0 * DT_S)  # evaluator: alpha 0, beta 1, gamma 1
+    c = (1.0 - phi_a) / (1.0 - np.exp(-k0 * DT_S))
+    x_q, xi, current = -u[0] * np.ones_like(k0), np.zeros_like(k0), []
+    for u_n, u_c_n in zip(u, u_c):
+        phi = np.exp(-gain(u_n, np.sign(u_c_n - u_n)) * DT_S)
+        r = c * (x_q + u_n)
+        x_q = phi_a * x_q + (phi_a - phi) * u_n - (1.0 - phi) * u_c_n
+        xi = phi_g * xi + (1.0 - phi_g) * np.abs(r)
+        current.append(xi)
+    ratio_current = np.array(current)[tail] / theta_u[tail, None]
+    assert ratio_current[:, 0].mean() > 3.0 * ratio_current[:, 1].mean()
+    assert ratio_current[:, 0].mean() > 3.0 * ratio[:, 0].mean()
+
+
+def test_detection_contrast_needs_a_better_fault_model(bank):
+    """Sensor noise on a fault-free held rod raises every filter's ratio alike: with a low detection_tau the
+    fault-free model is rejected unless its ratio must also exceed the best fault model's by
+    detection_contrast; a disconnected rod (the bank's no-load model) is detected with the contrast."""
+    def params(contrast):
+        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.0, detection_tau=0.03,
+                                 detection_contrast=contrast, detection_confirm_s=0.5)
+        return build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
+
+    u_c, u = noisy_hold(bank, 0)
+    assert list(run_system(params(0.0), u_c, u))[2].any()
+    assert not list(run_system(params(0.05), u_c, u))[2].any()
+    u_c, u = noisy_hold(bank, 1, dither_deg=3.0)
+    assert list(run_system(params(0.05), u_c, u))[2][500:].all()

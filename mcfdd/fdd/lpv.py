@@ -113,6 +113,8 @@ def from_dict(data: dict, dtype=np.float32) -> tuple[GainBank, tuple[str, ...]]:
     if data.get("version") != FORMAT_VERSION:
         raise ValueError(f"LPV bank version {data.get('version')!r} is not supported (expected {FORMAT_VERSION})")
     models = data["models"]
+    if len(models) < 2:
+        raise ValueError(f"an LPV bank needs the fault-free model and at least one fault model, not {len(models)}")
     coef = np.array([[[m["coefficients_1_s"][cn][t] for t in AFFINE_TERMS] for cn in COEFFICIENT_NAMES]
                      for m in models])
     nu = np.array([m["nu"] for m in models])

@@ -19,9 +19,17 @@
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
+- sgn(xdot) of the LPV gains (eq. 3) is estimated on board as the sign of the measured tracking
+  error low-passed (pole ``direction_pole``) up to the previous sample. The sign of the current
+  sample's u_c - u would correlate with its sensor noise: where the error is within the noise (a
+  held deflection), k(s) (u_c - u) then rectifies the noise through the model's direction
+  dependence, which at a large hinge load gives the fault-free filter a bias the no-load model
+  has not, just as a disconnection does.
 - Two levels of output, as an FDD engineer reads them: detection (``fault_detected``: the
-  fault-free model rejected, theta_0 / ||u|| >= ``detection_tau`` while excited, without
-  interruption for ``detection_confirm_s``: "an LOE fault is present") and identification
+  fault-free model rejected, theta_0 / ||u|| >= ``detection_tau`` and at least
+  ``detection_contrast`` above the smallest ratio of the fault models while excited, without
+  interruption for ``detection_confirm_s``: "an LOE fault is present"; sensor noise at the
+  excitation floor raises every ratio alike, a fault lowers the ratio of the models near it) and identification
   (``detected``: the decoded signature (15), confirmed over ``confirm_s``). Thresholds of the
   signature are constant or scheduled online on eq. (16) at the current scheduling point.
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
@@ -44,11 +52,14 @@ from mcfdd.fdd import decision, evaluator, lpv, residual, stall, thresholds
 class LoeParams(NamedTuple):
     bank: lpv.GainBank
     pole: float  # a of the bank's filters and of the excitation low-pass (1/s)
+    direction_pole: float  # pole of the tracking-error low-pass whose previous sample gives sgn(xdot) (1/s)
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
     tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
     detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
     detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
+    # ... and theta_0 / ||u|| at least this above the best-fitting fault model's
+    detection_contrast: float
     # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
     excitation_floor: float
     # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
@@ -80,6 +91,7 @@ class FddState(NamedTuple):
     band_xi: jnp.ndarray
     band_w_xi: jnp.ndarray  # evaluated load-weighted excitation
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
+    error_lp: jnp.ndarray  # low-passed measured tracking error u_c - u up to the previous sample (its sign is sgn(xdot))
     confirm: tuple
     detect: tuple
     since_stall: jnp.ndarray
@@ -143,6 +155,7 @@ def init(params: FddParams, u0) -> FddState:
         band_xi=jnp.zeros_like(u0),
         band_w_xi=jnp.zeros_like(u0),
         was_valid=jnp.asarray(True),
+        error_lp=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
         since_stall=jnp.asarray(jnp.inf, u0.dtype),
@@ -157,7 +170,9 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     """One sample of both FDD systems. Returns (new state, :class:`FddOutputs` at time t)."""
     loe, stl = params.loe, params.stall
     bank = loe.bank
-    direction = jnp.sign(u_c - u)
+    direction = jnp.sign(state.error_lp)
+    phi_d = jnp.exp(-loe.direction_pole * dt_s)
+    error_lp = phi_d * state.error_lp + (1.0 - phi_d) * (u_c - u)
     k = once(lpv.gains(bank, u, direction, vcas_m_s, altitude_m), params.one)
 
     load = load_fraction(bank, k)
@@ -186,11 +201,12 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_aware = since_stall <= loe.stall_hold_s
     decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
-    rejected = excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
+    rejected = (excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
+                & decision.signature(theta[0] - jnp.min(theta[1:]), theta_u, loe.detection_contrast))
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi,
-                   signal, model)
+    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, error_lp, confirm, detect, since_stall, stall_xq,
+                   stall_xi, signal, model)
     return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected, fault == 1, r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
