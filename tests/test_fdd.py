@@ -689,3 +689,37 @@ def test_load_weighted_excitation(bank):
     np.testing.assert_array_equal(out.theta_u, outs[0.0].theta_u)
     np.testing.assert_array_equal(outs[0.0].theta_w, outs[0.0].theta_u)
     assert (outs[0.0].excited & ~out.excited).any() and not (out.excited & ~outs[0.0].excited).any()
+
+
+def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
+    """tau_schedule = 0 and excitation_load_fraction = 0 in a config build no schedule and no weighted
+    evaluator (None leaves, no state); the step then gives the outputs of the same options built with the
+    traced value 0, and with the options on the step stays differentiable in their values."""
+    n = 300
+    u_c = smooth_command(n, 3.0)
+    u, _ = lpv_plant(eq4_gains(bank, VCAS_M_S, ALT_M), 4, u_c, u_c[0])
+    u = u[:-1]
+    off = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.5)), bank,
+                           r_arm_m=R_ARM_M)
+    assert off.loe.tau_schedule is None and off.loe.excitation_load_fraction is None
+    assert system.init(off, u[0]).band_w_xi is None
+    at_zero = off._replace(loe=off.loe._replace(tau_schedule=0.0, excitation_load_fraction=0.0))
+
+    def run(params):
+        def body(state, inp):
+            c, m, t = inp
+            return system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+        return jax.lax.scan(body, system.init(params, u[0]), (u_c, u, np.arange(n) * DT_S))[1]
+
+    a, b = (jax.tree.map(np.asarray, jax.jit(run)(p)) for p in (off, at_zero))
+    for name in a._fields:
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=0, err_msg=name)
+    assert a.excited.any() and not a.excited.all()
+
+    def weighted(values):
+        on = off._replace(loe=off.loe._replace(tau_schedule=values[0], excitation_load_fraction=values[1]))
+        out = run(on)
+        return jnp.sum(out.theta_w) + jnp.sum(jnp.where(out.iota, 0.0, 1.0))
+
+    grad = jax.jit(jax.grad(weighted))(jnp.array([0.5, 0.2]))
+    assert np.isfinite(grad).all() and grad[1] != 0.0

@@ -46,11 +46,13 @@ class LoeParams(NamedTuple):
     pole: float  # a of the bank's filters and of the excitation low-pass (1/s)
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
-    tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
+    tau_schedule: float | None  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho);
+    # None: constant thresholds, the schedule not built (static structure, see :func:`switch`)
     detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
     detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
     excitation_floor: float  # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
-    excitation_load_fraction: float  # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
+    excitation_load_fraction: float | None  # excitation counts in full from this estimated hinge-load fraction up;
+    # None: everywhere, the weighted evaluator not built
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
@@ -76,7 +78,7 @@ class FddState(NamedTuple):
     bank_xi: jnp.ndarray
     band: jnp.ndarray
     band_xi: jnp.ndarray
-    band_w_xi: jnp.ndarray  # evaluated load-weighted excitation
+    band_w_xi: jnp.ndarray | None  # evaluated load-weighted excitation (None without load weighting)
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
     confirm: tuple
     detect: tuple
@@ -118,6 +120,16 @@ def load_fraction(bank: lpv.GainBank, k):
     return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
+def switch(value: float) -> float | None:
+    """An option whose value 0 turns it off, as a leaf of :class:`LoeParams`: None when off.
+
+    None is static structure (a pytree node with no leaves), so an option that is off is not
+    built into the compiled step at all, while a value that is on stays a traced number (tuned,
+    sampled, differentiated like any other).
+    """
+    return None if value == 0.0 else value
+
+
 def excitation_weight(loe: LoeParams, load):
     """Weight of the excitation at estimated hinge-load fraction ``load``: min(1, |load| / f_ref).
 
@@ -139,7 +151,7 @@ def init(params: FddParams, u0) -> FddState:
         bank_xi=jnp.zeros_like(bank_xq),
         band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
-        band_w_xi=jnp.zeros_like(u0),
+        band_w_xi=None if params.loe.excitation_load_fraction is None else jnp.zeros_like(u0),
         was_valid=jnp.asarray(True),
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
@@ -169,9 +181,14 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     band = jnp.where(running, state.band, decision.excitation_init(u))
     band, bp = decision.excitation_step(band, u_c, u, loe.pole, dt_s)
     band_xi, theta_u = once(evaluator.step(loe.evaluator, state.band_xi, bp, dt_s), params.one)
-    band_w_xi, theta_w = once(evaluator.step(loe.evaluator, state.band_w_xi, bp * excitation_weight(loe, load), dt_s),
-                              params.one)
-    tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
+    if loe.excitation_load_fraction is None:
+        band_w_xi, theta_w = None, theta_u
+    else:
+        band_w_xi, theta_w = once(evaluator.step(loe.evaluator, state.band_w_xi, bp * excitation_weight(loe, load),
+                                                 dt_s), params.one)
+    tau = loe.tau
+    if loe.tau_schedule is not None:
+        tau = jnp.maximum(tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
     excited = theta_w >= loe.excitation_floor
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
