@@ -12,6 +12,9 @@ quantity is then computed in one fusion, stored, and read by every user. The div
 
 ``jax.lax.optimization_barrier`` would express the same intent, but XLA's CPU pipeline removes
 it before fusion, so it has no effect there (``benchmarks/campaign_throughput.py --barrier-check``).
+A boolean mask goes the same way as a float 0/1 (:func:`once_mask`): the mask is computed in the
+one fusion of the division, and each user only compares the stored float with 0.
+
 When the 1.0 is a compile-time constant (parameters closed over instead of passed) XLA folds the
 division away: results are the same, only the duplication returns.
 """
@@ -36,3 +39,13 @@ def once(tree, one):
 
     one = jnp.asarray(one)
     return jax.tree.map(leaf, tree)
+
+
+def once_mask(mask, one):
+    """A boolean ``mask`` computed once: stored as a float 0/1 divided by ``one``, each user compares it.
+
+    XLA duplicates the comparisons and logic a mask is made of into every fusion it gates (the
+    reductions' masks gated 10-26 fusions each); the float costs one comparison per user instead.
+    """
+    one = jnp.asarray(one)
+    return once(jnp.where(mask, jnp.ones((), one.dtype), jnp.zeros((), one.dtype)), one) > 0.0

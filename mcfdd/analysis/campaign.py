@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcfdd.analysis.simulate import scan_steps
-from mcfdd.compute import ONE, once
+from mcfdd.compute import ONE, once, once_mask
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
@@ -178,8 +178,8 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
                    fdd: system.FddOutputs) -> Reduction:
     """Fold one sample into the running reductions."""
     stall_now = plant.stall
-    red = _close_event(s, red, t, red.in_event & ~stall_now)
-    opening = stall_now & ~red.in_event
+    red = _close_event(s, red, t, once_mask(red.in_event & ~stall_now, s.one))
+    opening = once_mask(stall_now & ~red.in_event, s.one)
     error = jnp.abs(plant.u_c_m - plant.x_m)
     red = red._replace(
         in_event=red.in_event | opening,
@@ -198,10 +198,10 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
                                   red.event_eta_model),
     )
     settled = t >= s.settle_s
-    clear_of_stall = ~stall_now & (t - red.last_stall_end > s.stall_grace_s)
+    clear_of_stall = once_mask(~stall_now & (t - red.last_stall_end > s.stall_grace_s), s.one)
     before_fault = t < truth.onset_s
-    quiet = settled & before_fault & clear_of_stall
-    in_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s)
+    quiet = once_mask(settled & before_fault & clear_of_stall, s.one)
+    in_window = once_mask((t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s), s.one)
     new_fa = quiet & fdd.fault_detected & ~jnp.isfinite(red.fa_time)
     new_det = in_window & fdd.fault_detected & ~jnp.isfinite(red.det_time)
     fault_model = fdd.detected >= 1

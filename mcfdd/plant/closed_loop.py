@@ -171,7 +171,7 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
     delta_c = once(jnp.where(pilot.open_loop, jnp.clip(pilot.command, -1.0, 1.0) * max_delta, delta_c), params.one)
     u_c = delta_c * act.r_arm_m
     act_state, out = actuator.step(act, params.fault, params.delta_grid_rad, params.load_slice_n,
-                                   state.actuator, u_c, t_s, dt_s, substeps)
+                                   state.actuator, u_c, t_s, dt_s, substeps, params.one)
     out = once(out, params.one)
     delta = out.x_m / act.r_arm_m
     delta_eff = aircraft.effective_aileron(params.aircraft, delta, delta_c, out.nu2)
