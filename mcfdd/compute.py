@@ -12,8 +12,9 @@ quantity is then computed in one fusion, stored, and read by every user. The div
 
 ``jax.lax.optimization_barrier`` would express the same intent, but XLA's CPU pipeline removes
 it before fusion, so it has no effect there (``benchmarks/campaign_throughput.py --barrier-check``).
-A boolean mask goes the same way as a float 0/1 (:func:`once_mask`): the mask is computed in the
-one fusion of the division, and each user only compares the stored float with 0.
+Boolean and integer leaves go the same way through a float (a mask as 0/1, a model id or count
+as its value, exact below 2**24): the leaf is computed in the one fusion of the division, and each
+user only converts or compares the stored float (one operation instead of the whole mask).
 
 When the 1.0 is a compile-time constant (parameters closed over instead of passed) XLA folds the
 division away: results are the same, only the duplication returns.
@@ -28,24 +29,20 @@ ONE = 1.0  # the default of the ``one`` leaves of the parameters (PlantModel, Fd
 
 
 def once(tree, one):
-    """``tree`` with its floating-point leaves divided by ``one`` (a runtime 1.0): computed once.
+    """``tree`` with its leaves computed once: divided by ``one`` (a runtime 1.0 of the step's parameters).
 
-    Integer and boolean leaves pass unchanged (XLA duplicates a mask's conversion to float and
-    back as readily as the mask itself). ``one`` is a scalar leaf of the step's parameters.
+    Floating-point leaves are divided as they are; boolean and integer leaves are divided as
+    floats in ``one``'s dtype and turned back (``> 0`` for a mask, a conversion for an integer,
+    exact for integers below 2**24 in magnitude). Values, dtypes and gradients are unchanged.
     """
+    one = jnp.asarray(one)
+
     def leaf(x):
         x = jnp.asarray(x)
-        return x / one.astype(x.dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x
+        if jnp.issubdtype(x.dtype, jnp.floating):
+            return x / one.astype(x.dtype)
+        if x.dtype == jnp.bool_:
+            return jnp.where(x, jnp.ones((), one.dtype), jnp.zeros((), one.dtype)) / one > 0.0
+        return (x.astype(one.dtype) / one).astype(x.dtype)
 
-    one = jnp.asarray(one)
     return jax.tree.map(leaf, tree)
-
-
-def once_mask(mask, one):
-    """A boolean ``mask`` computed once: stored as a float 0/1 divided by ``one``, each user compares it.
-
-    XLA duplicates the comparisons and logic a mask is made of into every fusion it gates (the
-    reductions' masks gated 10-26 fusions each); the float costs one comparison per user instead.
-    """
-    one = jnp.asarray(one)
-    return once(jnp.where(mask, jnp.ones((), one.dtype), jnp.zeros((), one.dtype)), one) > 0.0

@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.compute import ONE, once, once_mask
+from mcfdd.compute import ONE, once
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, thresholds
 
 
@@ -196,12 +196,13 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     iota_stall = decision.threshold(theta_stall, stl.tau)
     signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s, dt_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
-    eta_signal, eta_model = once_mask(eta_signal, params.one), once_mask(eta_model, params.one)
+    eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
     stall_aware = since_stall <= loe.stall_hold_s
     decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
+    detected = once(detected, params.one)
     rejected = excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)

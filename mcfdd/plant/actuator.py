@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.compute import ONE, once, once_mask
+from mcfdd.compute import ONE, once
 from mcfdd.plant import hinge
 
 
@@ -185,7 +185,7 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
         x_m=x0,
         rate_m_s=jnp.where(jammed, 0.0, k0 * (u_c_m - x0)),
         dp_avail_norm=a0 / params.supply_pressure_pa,
-        stall=once_mask((a0 <= STALL_MARGIN * params.supply_pressure_pa) & ~jammed, one),
+        stall=(a0 <= STALL_MARGIN * params.supply_pressure_pa) & ~jammed,
         nu1=nu1,
         nu2=nu2,
         load_fraction=jnp.abs(load0) / (nu1 * params.supply_pressure_pa * params.piston_area_m2),
