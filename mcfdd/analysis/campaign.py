@@ -166,11 +166,12 @@ def _eta_outside(s: Settings, red: Reduction, method: str, outside, opening, t) 
     """
     pending = getattr(red, f"eta_pending_{method}")
     found = getattr(red, f"eta_outside_{method}")
-    explained = opening & (t - pending <= s.stall_grace_s)
+    # pending is a time or inf, so "explained" (a stall opens within the grace time) and "expired"
+    # (the grace time is over) are disjoint, and an opening drops a pending time either way
     expired = t - pending > s.stall_grace_s
-    found = jnp.where(expired & ~explained, jnp.minimum(found, pending), found)
-    pending = jnp.where(explained | expired, jnp.inf, pending)
-    pending = jnp.where(outside & ~jnp.isfinite(pending), t, pending)
+    found = jnp.minimum(found, jnp.where(expired, pending, jnp.inf))
+    pending = jnp.where(expired | opening, jnp.inf, pending)
+    pending = jnp.where(outside & (pending == jnp.inf), t, pending)
     return {f"eta_outside_{method}": found, f"eta_pending_{method}": pending}
 
 
@@ -182,7 +183,7 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     opening = once(stall_now & ~red.in_event, s.one)
     error = jnp.abs(plant.u_c_m - plant.x_m)
     red = red._replace(
-        in_event=red.in_event | opening,
+        in_event=stall_now,  # = in_event & ~closing | opening
         event_start=jnp.where(opening, t, red.event_start),
         event_max_error=jnp.where(opening, error, jnp.maximum(red.event_max_error, jnp.where(stall_now, error, 0.0))),
         event_theta_peak=jnp.where(opening, fdd.theta_stall, jnp.where(

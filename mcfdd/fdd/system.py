@@ -200,7 +200,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
     stall_aware = since_stall <= loe.stall_hold_s
-    decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
+    decoded = once(jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited)), params.one)
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
     detected = once(detected, params.one)
     rejected = excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
@@ -209,5 +209,6 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
 
     new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, confirm, detect, since_stall, stall_xq, stall_xi, signal,
                    model)
-    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected, fault == 1, r_stall,
+    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected,
+                           once(fault == 1, params.one), r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
