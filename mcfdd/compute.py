@@ -8,7 +8,8 @@ duplicate an operation it counts as expensive, and a floating-point division is 
 :func:`once` divides a shared quantity by a 1.0 that is known only at run time (a leaf of the
 parameters, an argument of the jitted function, so XLA can neither fold nor simplify it). The
 quantity is then computed in one fusion, stored, and read by every user. The division is exact
-(x / 1 == x for every float, inf and nan included): results do not change.
+(x / 1 == x for every float, inf and nan included; subnormals are flushed to zero by XLA CPU in
+every operation, this one too): results do not change.
 
 ``jax.lax.optimization_barrier`` would express the same intent, but XLA's CPU pipeline removes
 it before fusion, so it has no effect there (``benchmarks/campaign_throughput.py --barrier-check``).
