@@ -497,7 +497,8 @@ def run_signal(rules, iota, u_c, u):
     t = jnp.arange(iota.shape[0]) * DT_S
 
     def body(state, inp):
-        return stall.signal_step(rules, state, *inp, DT_S)
+        i, c, m, tk = inp
+        return stall.signal_step(rules, state, i, stall.conditions(rules, c, m), m, tk, DT_S)
     return jax.lax.scan(body, stall.signal_init(u[0]), (iota, u_c, u, t))[1]
 
 
@@ -581,7 +582,8 @@ MODEL_RULE = stall.ModelRule(k_sl=0.05, pole=5.0, evaluator=evaluator.NarendraPa
 def run_model_rule(iota, u_c, u):
     """stall.model_step over a trace -> (eta, theta_sl)."""
     def body(state, inp):
-        state, eta, _, theta_sl = stall.model_step(MODEL_RULE, RULES, state, *inp, DT_S)
+        i, c, m = inp
+        state, eta, _, theta_sl = stall.model_step(MODEL_RULE, state, i, stall.conditions(RULES, c, m), c, m, DT_S)
         return state, (eta, theta_sl)
     return jax.lax.scan(body, stall.model_init(u[0]), (iota, u_c, u))[1]
 

@@ -194,8 +194,9 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
-    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s, dt_s)
-    model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
+    gate = once(stall.conditions(stl.signal, u_c, u), params.one)  # both methods' gate
+    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
+    model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
     eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
