@@ -19,7 +19,9 @@ Per pipeline measurement (default 4,096 scenarios x 6,000 steps, one chunk):
 - from the compiled HLO of the device program (``device_batch`` on a small batch): fusions and
   copies in the body of the step loop and element-ops per scenario-step (elementwise operations
   executed per step, inside fusions or not, each weighted by its elements per scenario; a
-  reduction by its input's elements). A regression of the compute-once rule shows here.
+  reduction by its input's elements). A regression of the compute-once rule shows here;
+  ``--hlo-lines N`` lists, without any timing, the N source lines with the most element-ops and
+  the number of fusions each is computed in (more than one: duplicated work, or several calls).
 
 ``--baseline PATH`` measures another checkout of mcfdd (a git worktree) as a peer in the same run:
 its package is imported first (``PYTHONPATH``) in its own subprocesses, alternating with this
@@ -245,6 +247,59 @@ def hlo_stats(text: str, batch: int, n_steps: int) -> dict:
     return {"fusions": ops["fusion"], "copies": ops["copy"],
             "element_ops": _ops(comps, step["body"], batch, loops=False),
             "element_ops_total": _ops(comps, entry, batch, loops=True) / n_steps}
+
+
+def _source_locations(text: str) -> dict:
+    """Stack-frame id -> "file:line function" of the optimised HLO's frame tables (innermost frame)."""
+    tables, table = {}, None
+    for line in text.splitlines():
+        if line in ("FileNames", "FunctionNames", "FileLocations", "StackFrames"):
+            table = tables.setdefault(line, {})
+        elif line.startswith(("ENTRY", "%")):
+            break
+        elif table is not None and (m := re.match(r"(\d+) (.*)", line)):
+            table[int(m.group(1))] = m.group(2)
+    def field(entry, name):
+        return int(re.search(name + r"=(\d+)", entry).group(1))
+
+    def location(entry):
+        file = tables["FileNames"][field(entry, "file_name_id")].strip('"').rsplit("/", 1)[-1]
+        function = tables["FunctionNames"][field(entry, "function_name_id")].strip('"')
+        return f"{file}:{field(entry, 'line')} {function}"
+
+    locations = {i: location(e) for i, e in tables.get("FileLocations", {}).items()}
+    return {i: locations[field(e, "file_location_id")] for i, e in tables.get("StackFrames", {}).items()}
+
+
+def hlo_lines(text: str, batch: int) -> list[dict]:
+    """Element-ops per scenario-step of the step loop by source line, with the fusions each line is computed in.
+
+    A line computed in several fusions is duplicated work (XLA CPU recomputes it in every loop
+    that uses it), unless it is a different call of the same function (a filter of each model).
+    """
+    frames = _source_locations(text)
+    comps = parse_hlo(text)
+    ops, fusions = Counter(), {}
+
+    def visit(instructions, top=None):
+        for i, ins in enumerate(instructions):
+            fusion = i if top is None else top
+            if ins["op"] == "fusion":
+                visit(comps[ins["calls"][0]], fusion)
+                continue
+            if ins["op"] in ELEMENTWISE:
+                n = _elements(ins["shape"])
+            elif ins["op"] in ("reduce", "reduce-window"):
+                n = _elements(ins["rest"].split("(", 1)[1])
+            else:
+                continue
+            frame = re.search(r"stack_frame_id=(\d+)", ins["rest"])
+            where = frames.get(int(frame.group(1)), "?") if frame else "?"
+            ops[where] += n / batch
+            fusions.setdefault(where, set()).add(fusion)
+
+    visit(comps[step_loop(comps)["body"]])
+    return [{"source": k, "element_ops": v, "fusions": len(fusions[k])} for k, v in ops.most_common()]
 
 
 def barrier_check() -> list[dict]:
@@ -776,6 +831,8 @@ def main(argv=None):
     parser.add_argument("--no-ceiling", action="store_true", help="skip the C kernel")
     parser.add_argument("--barrier-check", action="store_true",
                         help="only show what optimization_barrier and mcfdd.compute.once do to a toy step's fusions")
+    parser.add_argument("--hlo-lines", type=int, metavar="N",
+                        help="only list the N source lines with the most element-ops in the compiled step loop")
     parser.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
                         help="before each measurement wait up to S seconds for idle cores (shared machines)")
     parser.add_argument("--family-chunks", action="store_true",
@@ -793,6 +850,15 @@ def main(argv=None):
         return
     if args.family_chunks:
         family_chunks(args)
+        return
+    if args.hlo_lines is not None:
+        rows = hlo_lines(Problem(args.scenarios, args.steps, args.chunk_size).device_program(), HLO_BATCH)
+        print(f"step loop of device_batch ({HLO_BATCH} scenarios x {HLO_STEPS} steps): "
+              f"{sum(r['element_ops'] for r in rows):.0f} element-ops per scenario-step")
+        print("| source line | element-ops per scenario-step | fusions |")
+        print("|---|---:|---:|")
+        for r in rows[:args.hlo_lines]:
+            print(f"| {r['source']} | {r['element_ops']:.0f} | {r['fusions']} |")
         return
     if args.baseline is not None and not (args.baseline / "mcfdd" / "__init__.py").is_file():
         raise SystemExit(f"--baseline: {args.baseline} holds no mcfdd package")

@@ -505,7 +505,8 @@ def run_signal(rules, iota, u_c, u):
     t = jnp.arange(iota.shape[0]) * DT_S
 
     def body(state, inp):
-        return stall.signal_step(rules, state, *inp, DT_S)
+        i, c, m, tk = inp
+        return stall.signal_step(rules, state, i, stall.conditions(rules, c, m), m, tk, DT_S)
     return jax.lax.scan(body, stall.signal_init(u[0]), (iota, u_c, u, t))[1]
 
 
@@ -589,7 +590,8 @@ MODEL_RULE = stall.ModelRule(k_sl=0.05, pole=5.0, evaluator=evaluator.NarendraPa
 def run_model_rule(iota, u_c, u):
     """stall.model_step over a trace -> (eta, theta_sl)."""
     def body(state, inp):
-        state, eta, _, theta_sl = stall.model_step(MODEL_RULE, RULES, state, *inp, DT_S)
+        i, c, m = inp
+        state, eta, _, theta_sl = stall.model_step(MODEL_RULE, state, i, stall.conditions(RULES, c, m), c, m, DT_S)
         return state, (eta, theta_sl)
     return jax.lax.scan(body, stall.model_init(u[0]), (iota, u_c, u))[1]
 
@@ -767,3 +769,37 @@ def test_detection_contrast_needs_a_better_fault_model(bank):
     assert not list(run_system(params(0.05), u_c, u))[2].any()
     u_c, u = noisy_hold(bank, 1, dither_deg=3.0)
     assert list(run_system(params(0.05), u_c, u))[2][500:].all()
+
+
+def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
+    """tau_schedule = 0 and excitation_load_fraction = 0 in a config build no schedule and no weighted
+    evaluator (None leaves, no state); the step then gives the outputs of the same options built with the
+    traced value 0, and with the options on the step stays differentiable in their values."""
+    n = 300
+    u_c = smooth_command(n, 3.0)
+    u, _ = lpv_plant(eq4_gains(bank, VCAS_M_S, ALT_M), 4, u_c, u_c[0])
+    u = u[:-1]
+    off = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.5)), bank,
+                           r_arm_m=R_ARM_M)
+    assert off.loe.tau_schedule is None and off.loe.excitation_load_fraction is None
+    assert system.init(off, u[0]).band_w_xi is None
+    at_zero = off._replace(loe=off.loe._replace(tau_schedule=0.0, excitation_load_fraction=0.0))
+
+    def run(params):
+        def body(state, inp):
+            c, m, t = inp
+            return system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+        return jax.lax.scan(body, system.init(params, u[0]), (u_c, u, np.arange(n) * DT_S))[1]
+
+    a, b = (jax.tree.map(np.asarray, jax.jit(run)(p)) for p in (off, at_zero))
+    for name in a._fields:
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=0, err_msg=name)
+    assert a.excited.any() and not a.excited.all()
+
+    def weighted(values):
+        on = off._replace(loe=off.loe._replace(tau_schedule=values[0], excitation_load_fraction=values[1]))
+        out = run(on)
+        return jnp.sum(out.theta_w) + jnp.sum(jnp.where(out.iota, 0.0, 1.0))
+
+    grad = jax.jit(jax.grad(weighted))(jnp.array([0.5, 0.2]))
+    assert np.isfinite(grad).all() and grad[1] != 0.0

@@ -68,10 +68,11 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
     return system.FddParams(
         loe=system.LoeParams(bank=bank, pole=loe.pole_1_s, direction_pole=loe.direction_pole_1_s,
                              evaluator=evaluator_params(loe.evaluator), tau=loe.tau,
-                             tau_schedule=loe.tau_schedule, detection_tau=loe.detection_tau,
+                             tau_schedule=system.switch(loe.tau_schedule), detection_tau=loe.detection_tau,
                              detection_confirm_s=loe.detection_confirm_s, detection_contrast=loe.detection_contrast,
                              excitation_floor=loe.excitation_floor_deg * deg,
-                             excitation_load_fraction=loe.excitation_load_fraction, confirm_s=loe.confirm_s,
+                             excitation_load_fraction=system.switch(loe.excitation_load_fraction),
+                             confirm_s=loe.confirm_s,
                              max_load_fraction=loe.max_load_fraction,
                              linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
         stall=system.StallParams(

@@ -139,9 +139,9 @@ def reduction_init(n_models: int, dtype) -> Reduction:
 def _close_event(s: Settings, red: Reduction, t_end, closing):
     """Book the current stall event if ``closing`` (its last sample was before ``t_end``)."""
     long_enough = t_end - red.event_start >= s.stall_min_duration_s
-    relevant = closing & long_enough & (red.event_max_error >= s.stall_min_error_m)
-    found_sig = relevant & jnp.isfinite(red.event_eta_signal)
-    found_mod = relevant & jnp.isfinite(red.event_eta_model)
+    relevant = once(closing & long_enough & (red.event_max_error >= s.stall_min_error_m), s.one)
+    found_sig, found_mod = once((relevant & jnp.isfinite(red.event_eta_signal),
+                                 relevant & jnp.isfinite(red.event_eta_model)), s.one)
     return red._replace(
         n_events=red.n_events + relevant.astype(jnp.int32),
         n_identified_signal=red.n_identified_signal + found_sig.astype(jnp.int32),
@@ -166,11 +166,12 @@ def _eta_outside(s: Settings, red: Reduction, method: str, outside, opening, t) 
     """
     pending = getattr(red, f"eta_pending_{method}")
     found = getattr(red, f"eta_outside_{method}")
-    explained = opening & (t - pending <= s.stall_grace_s)
+    # pending is a time or inf, so "explained" (a stall opens within the grace time) and "expired"
+    # (the grace time is over) are disjoint, and an opening drops a pending time either way
     expired = t - pending > s.stall_grace_s
-    found = jnp.where(expired & ~explained, jnp.minimum(found, pending), found)
-    pending = jnp.where(explained | expired, jnp.inf, pending)
-    pending = jnp.where(outside & ~jnp.isfinite(pending), t, pending)
+    found = jnp.minimum(found, jnp.where(expired, pending, jnp.inf))
+    pending = jnp.where(expired | opening, jnp.inf, pending)
+    pending = jnp.where(outside & (pending == jnp.inf), t, pending)
     return {f"eta_outside_{method}": found, f"eta_pending_{method}": pending}
 
 
@@ -178,11 +179,11 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
                    fdd: system.FddOutputs) -> Reduction:
     """Fold one sample into the running reductions."""
     stall_now = plant.stall
-    red = _close_event(s, red, t, red.in_event & ~stall_now)
-    opening = stall_now & ~red.in_event
+    red = _close_event(s, red, t, once(red.in_event & ~stall_now, s.one))
+    opening = once(stall_now & ~red.in_event, s.one)
     error = jnp.abs(plant.u_c_m - plant.x_m)
     red = red._replace(
-        in_event=red.in_event | opening,
+        in_event=stall_now,  # = in_event & ~closing | opening
         event_start=jnp.where(opening, t, red.event_start),
         event_max_error=jnp.where(opening, error, jnp.maximum(red.event_max_error, jnp.where(stall_now, error, 0.0))),
         event_theta_peak=jnp.where(opening, fdd.theta_stall, jnp.where(
@@ -192,21 +193,17 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
         event_eta_model=jnp.where(opening, jnp.inf, red.event_eta_model),
     )
     red = red._replace(
-        event_eta_signal=jnp.where(stall_now & fdd.eta_signal, jnp.minimum(red.event_eta_signal, t),
-                                   red.event_eta_signal),
-        event_eta_model=jnp.where(stall_now & fdd.eta_model, jnp.minimum(red.event_eta_model, t),
-                                  red.event_eta_model),
+        event_eta_signal=_first(red.event_eta_signal, stall_now & fdd.eta_signal, t),
+        event_eta_model=_first(red.event_eta_model, stall_now & fdd.eta_model, t),
     )
     settled = t >= s.settle_s
-    clear_of_stall = ~stall_now & (t - red.last_stall_end > s.stall_grace_s)
+    clear_of_stall = once(~stall_now & (t - red.last_stall_end > s.stall_grace_s), s.one)
     before_fault = t < truth.onset_s
-    quiet = settled & before_fault & clear_of_stall
-    in_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s)
-    new_fa = quiet & fdd.fault_detected & ~jnp.isfinite(red.fa_time)
-    new_det = in_window & fdd.fault_detected & ~jnp.isfinite(red.det_time)
+    quiet = once(settled & before_fault & clear_of_stall, s.one)
+    in_window = once((t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s), s.one)
     fault_model = fdd.detected >= 1
-    new_fid = quiet & fault_model & ~jnp.isfinite(red.fid_time)
-    new_id = in_window & fault_model & ~jnp.isfinite(red.id_time)
+    new_fid = once(quiet & fault_model & ~jnp.isfinite(red.fid_time), s.one)
+    new_id = once(in_window & fault_model & ~jnp.isfinite(red.id_time), s.one)
     ratio = once(fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0), s.one)
     pre = quiet & fdd.excited
     post = in_window & fdd.excited
@@ -214,8 +211,8 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     finite = jnp.isfinite(plant.u_m) & jnp.isfinite(fdd.theta_stall) & jnp.all(jnp.isfinite(fdd.theta))
     return red._replace(
         finite=red.finite & finite,
-        fa_time=jnp.where(new_fa, t, red.fa_time),
-        det_time=jnp.where(new_det, t, red.det_time),
+        fa_time=_first(red.fa_time, quiet & fdd.fault_detected, t),
+        det_time=_first(red.det_time, in_window & fdd.fault_detected, t),
         fid_time=jnp.where(new_fid, t, red.fid_time),
         fid_model=jnp.where(new_fid, fdd.detected, red.fid_model),
         id_time=jnp.where(new_id, t, red.id_time),
@@ -234,6 +231,11 @@ def reduction_step(s: Settings, truth: Truth, red: Reduction, t, plant: closed_l
     )
 
 
+def _first(time, now, t):
+    """The first time ``now`` held: ``time`` if already set, else t where ``now`` (t only increases)."""
+    return jnp.minimum(time, jnp.where(now, t, jnp.inf))
+
+
 def _extend(bounds, value):
     """(min, max) widened to include ``value``."""
     return jnp.stack([jnp.minimum(bounds[0], value), jnp.maximum(bounds[1], value)])
@@ -250,7 +252,7 @@ def _truth_peaks(s: Settings, truth: Truth, red: Reduction, t, plant: closed_loo
                                         red.peak_load_fraction),
         "peak_deflection_rad": jnp.where(after, jnp.maximum(red.peak_deflection_rad, jnp.abs(plant.delta_rad)),
                                          red.peak_deflection_rad),
-        "jam_stall_time": jnp.where(jam_stall, jnp.minimum(red.jam_stall_time, t), red.jam_stall_time),
+        "jam_stall_time": _first(red.jam_stall_time, jam_stall, t),
     }
 
 

@@ -73,13 +73,21 @@ def outward(rules: SignalRules, u_c, u):
     return (jnp.sign(error) == jnp.sign(u)) & (jnp.abs(error) >= rules.error_min_m)
 
 
+def conditions(rules: SignalRules, u_c, u):
+    """Conditions (34) and (35) together: the gate of both identification methods."""
+    return large_signals(rules, u_c, u) & outward(rules, u_c, u)
+
+
 def signal_init(u0) -> SignalState:
     u0 = jnp.asarray(u0)
     return SignalState(jnp.zeros_like(u0), u0, jnp.zeros_like(u0, dtype=bool))
 
 
-def signal_step(rules: SignalRules, state: SignalState, iota, u_c, u, t_s, dt_s: float):
-    """Rules (32)-(35) with the anchor logic of the module docstring. Returns (new state, eta)."""
+def signal_step(rules: SignalRules, state: SignalState, iota, gate, u, t_s, dt_s: float):
+    """Rules (32)-(35) with the anchor logic of the module docstring; ``gate`` is :func:`conditions`.
+
+    Returns (new state, eta).
+    """
     rising = iota & ~state.iota_prev
     anchor_t = jnp.where(rising, t_s, state.anchor_t_s)
     anchor_u = jnp.where(rising, u, state.anchor_u_m)
@@ -87,7 +95,7 @@ def signal_step(rules: SignalRules, state: SignalState, iota, u_c, u, t_s, dt_s:
     mean_rate = jnp.abs(u - anchor_u) / jnp.maximum(elapsed, 1e-9)
     long_enough = elapsed >= rules.window_s - 0.5 * dt_s
     slow = long_enough & (mean_rate <= rules.rate_min_m_s)
-    eta = iota & slow & large_signals(rules, u_c, u) & outward(rules, u_c, u)
+    eta = iota & slow & gate
     moved = long_enough & (mean_rate > rules.rate_min_m_s)
     new = SignalState(jnp.where(moved, t_s, anchor_t), jnp.where(moved, u, anchor_u), iota)
     return new, eta
@@ -102,9 +110,9 @@ def model_init(u0) -> ModelState:
     return ModelState(residual.init(u0), evaluator.init(jnp.asarray(u0)))
 
 
-def model_step(rule: ModelRule, gate: SignalRules, state: ModelState, iota, u_c, u, dt_s: float):
-    """Identification (a). Returns (new state, eta, r_sl, theta_sl)."""
+def model_step(rule: ModelRule, state: ModelState, iota, gate, u_c, u, dt_s: float):
+    """Identification (a), gated by ``gate`` (:func:`conditions`). Returns (new state, eta, r_sl, theta_sl)."""
     x_q, r_sl = residual.step(state.x_q, u, u_c, rule.k_sl, rule.k_sl, rule.pole, dt_s)
     xi, theta_sl = evaluator.step(rule.evaluator, state.xi, r_sl, dt_s)
-    eta = iota & (theta_sl < rule.tau) & large_signals(gate, u_c, u) & outward(gate, u_c, u)
+    eta = iota & (theta_sl < rule.tau) & gate
     return ModelState(x_q, xi), eta, r_sl, theta_sl

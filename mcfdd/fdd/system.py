@@ -55,15 +55,17 @@ class LoeParams(NamedTuple):
     direction_pole: float  # pole of the tracking-error low-pass whose previous sample gives sgn(xdot) (1/s)
     evaluator: evaluator.NarendraParams
     tau: jnp.ndarray  # threshold(s) on theta_i / ||u||, scalar or (N,)
-    tau_schedule: float  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho); 0: constant
+    tau_schedule: float | None  # tau_i(rho) = max(tau, tau_schedule * distance (16) to the nearest model at rho);
+    # None: constant thresholds, the schedule not built (static structure, see :func:`switch`)
     detection_tau: float  # the fault-free model is rejected while theta_0 / ||u|| is above this (and excited)
     detection_confirm_s: float  # ... for this long without interruption: an LOE fault is detected
     # ... and theta_0 / ||u|| at least this above the best-fitting fault model's
     detection_contrast: float
     # minimum ||u|| (theta units, m s), load-weighted if excitation_load_fraction > 0, for a decision
     excitation_floor: float
-    # excitation counts in full from this estimated hinge-load fraction up; 0: everywhere
-    excitation_load_fraction: float
+    # excitation counts in full from this estimated hinge-load fraction up;
+    # None: everywhere, the weighted evaluator not built
+    excitation_load_fraction: float | None
     confirm_s: float  # a decoded model must persist this long to become a decision
     max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
@@ -89,7 +91,7 @@ class FddState(NamedTuple):
     bank_xi: jnp.ndarray
     band: jnp.ndarray
     band_xi: jnp.ndarray
-    band_w_xi: jnp.ndarray  # evaluated load-weighted excitation
+    band_w_xi: jnp.ndarray | None  # evaluated load-weighted excitation (None without load weighting)
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
     error_lp: jnp.ndarray  # low-passed measured tracking error u_c - u up to the previous sample (its sign is sgn(xdot))
     confirm: tuple
@@ -132,6 +134,16 @@ def load_fraction(bank: lpv.GainBank, k):
     return jnp.where(k_free > 0.0, 1.0 - (k[0] / jnp.where(k_free > 0.0, k_free, 1.0)) ** 2, 0.0)
 
 
+def switch(value: float) -> float | None:
+    """An option whose value 0 turns it off, as a leaf of :class:`LoeParams`: None when off.
+
+    None is static structure (a pytree node with no leaves), so an option that is off is not
+    built into the compiled step at all, while a value that is on stays a traced number (tuned,
+    sampled, differentiated like any other).
+    """
+    return None if value == 0.0 else value
+
+
 def excitation_weight(loe: LoeParams, load):
     """Weight of the excitation at estimated hinge-load fraction ``load``: min(1, |load| / f_ref).
 
@@ -153,7 +165,7 @@ def init(params: FddParams, u0) -> FddState:
         bank_xi=jnp.zeros_like(bank_xq),
         band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
-        band_w_xi=jnp.zeros_like(u0),
+        band_w_xi=None if params.loe.excitation_load_fraction is None else jnp.zeros_like(u0),
         was_valid=jnp.asarray(True),
         error_lp=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
@@ -186,21 +198,29 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     band = jnp.where(running, state.band, decision.excitation_init(u))
     band, bp = decision.excitation_step(band, u_c, u, loe.pole, dt_s)
     band_xi, theta_u = once(evaluator.step(loe.evaluator, state.band_xi, bp, dt_s), params.one)
-    band_w_xi, theta_w = once(evaluator.step(loe.evaluator, state.band_w_xi, bp * excitation_weight(loe, load), dt_s),
-                              params.one)
-    tau = jnp.maximum(loe.tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
+    if loe.excitation_load_fraction is None:
+        band_w_xi, theta_w = None, theta_u
+    else:
+        band_w_xi, theta_w = once(evaluator.step(loe.evaluator, state.band_w_xi, bp * excitation_weight(loe, load),
+                                                 dt_s), params.one)
+    tau = loe.tau
+    if loe.tau_schedule is not None:
+        tau = jnp.maximum(tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
     excited = theta_w >= loe.excitation_floor
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
-    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, u_c, u, t_s, dt_s)
-    model, eta_model, _, theta_sl = stall.model_step(stl.model, stl.signal, state.model, iota_stall, u_c, u, dt_s)
+    gate = once(stall.conditions(stl.signal, u_c, u), params.one)  # both methods' gate
+    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
+    model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
+    eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
     stall_aware = since_stall <= loe.stall_hold_s
-    decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
+    decoded = once(jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited)), params.one)
     confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
+    detected = once(detected, params.one)
     rejected = (excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
                 & decision.signature(theta[0] - jnp.min(theta[1:]), theta_u, loe.detection_contrast))
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
@@ -208,5 +228,6 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
 
     new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, error_lp, confirm, detect, since_stall, stall_xq,
                    stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected, fault == 1, r_stall,
+    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected,
+                           once(fault == 1, params.one), r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)

@@ -36,6 +36,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import ONE, once
 from mcfdd.plant import hinge
 
 
@@ -115,7 +116,7 @@ def rate(params: ActuatorParams, nu1, nu2, load_n, x_m, u_c_m):
     return k * (u_c_m - x_m)
 
 
-def _saturated_travel(params: ActuatorParams, nu2, slope_n_rad, w0, e0_abs, dt_s):
+def _saturated_travel(params: ActuatorParams, nu2, slope_n_rad, w0, e0_abs, dt_s, one=ONE):
     """Time (s), distance (m) and final rate (m/s) of the rod's travel at full valve current in one sample.
 
     At full current ``g`` is constant, and along the travel z >= 0 the table line gives
@@ -135,7 +136,7 @@ def _saturated_travel(params: ActuatorParams, nu2, slope_n_rad, w0, e0_abs, dt_s
     t_edge = jnp.where(reaches, 2.0 * d / jnp.where(reaches, w0 + _safe_sqrt(disc), 1.0), jnp.inf)
     decelerating = moving & (c < 0.0)
     t_stop = jnp.where(decelerating, -w0 / jnp.where(decelerating, 2.0 * c, -1.0), jnp.inf)
-    t_sat = jnp.where(moving, jnp.minimum(jnp.minimum(t_edge, t_stop), dt_s), 0.0)
+    t_sat = once(jnp.where(moving, jnp.minimum(jnp.minimum(t_edge, t_stop), dt_s), 0.0), one)
     travel = jnp.minimum(w0 * t_sat + c * t_sat * t_sat, jnp.maximum(d, 0.0))
     return t_sat, travel, jnp.maximum(w0 + 2.0 * c * t_sat, 0.0)
 
@@ -151,11 +152,13 @@ def active_nu(fault: ActuatorFault, t_s):
 
 
 def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slice_n, state: ActuatorState,
-         u_c_m, t_s, dt_s: float, substeps: int):
+         u_c_m, t_s, dt_s: float, substeps: int, one=ONE):
     """Advance the rod over one sample with ``u_c`` held (zero-order hold).
 
     ``delta_grid_rad`` and ``load_slice_n`` are the hinge table at the run's flight point
-    (:func:`mcfdd.plant.hinge.flight_point_slice`). ``dt_s`` and ``substeps`` are static.
+    (:func:`mcfdd.plant.hinge.flight_point_slice`). ``dt_s`` and ``substeps`` are static; ``one``
+    is the runtime 1.0 of :func:`mcfdd.compute.once` (the load line, the gain, the saturated travel
+    and each sub-step feed several later stages).
     Returns (new state, :class:`ActuatorOutputs` at the start of the step).
     """
     nu1, nu2 = active_nu(fault, t_s)
@@ -163,10 +166,10 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
     x_max = params.r_arm_m * params.max_deflection_rad
 
     x0 = state.x_m
-    load0, slope = hinge.local_line(delta_grid_rad, load_slice_n, x0 / params.r_arm_m)
-    k0, a0 = gain(params, nu1, nu2, load0, x0, u_c_m)
+    load0, slope = once(hinge.local_line(delta_grid_rad, load_slice_n, x0 / params.r_arm_m), one)
+    k0, a0 = once(gain(params, nu1, nu2, load0, x0, u_c_m), one)
     e0 = u_c_m - x0
-    t_sat, travel, rate_end = _saturated_travel(params, nu2, slope, k0 * jnp.abs(e0), jnp.abs(e0), dt_s)
+    t_sat, travel, rate_end = _saturated_travel(params, nu2, slope, k0 * jnp.abs(e0), jnp.abs(e0), dt_s, one)
     saturated = t_sat > 0.0
     e1_abs = jnp.abs(e0) - travel
     x1 = x0 + jnp.sign(e0) * travel
@@ -176,7 +179,7 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
         if i:
             load = load0 + slope * (x1 - x0) / params.r_arm_m
             k, _ = gain(params, nu1, nu2, load, x1, u_c_m)
-        x1 = u_c_m - (u_c_m - x1) * jnp.exp(-k * h)
+        x1 = once(u_c_m - (u_c_m - x1) * jnp.exp(-k * h), one)
     x1 = jnp.clip(jnp.where(jammed, x0, x1), -x_max, x_max)
     outputs = ActuatorOutputs(
         x_m=x0,

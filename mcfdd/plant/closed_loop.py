@@ -166,13 +166,13 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
     pilot = once(manoeuvres.inputs(params.manoeuvre, t_s, kinds), params.one)
     gust_next, (v_gust, p_gust) = turbulence.step(params.turbulence, state.gust, noise[:3])
     max_delta = act.max_deflection_rad
-    p_cmd = control_law.roll_rate_demand(params.law, pilot.stick, state.roll.phi_rad)
+    p_cmd = once(control_law.roll_rate_demand(params.law, pilot.stick, state.roll.phi_rad), params.one)
     integrator, delta_c = control_law.step(params.law, params.gains, state.integrator, p_cmd,
                                            state.roll.p_rad_s, max_delta, dt_s)
     delta_c = once(jnp.where(pilot.open_loop, jnp.clip(pilot.command, -1.0, 1.0) * max_delta, delta_c), params.one)
-    u_c = delta_c * act.r_arm_m
+    u_c = once(delta_c * act.r_arm_m, params.one)
     act_state, out = actuator.step(act, params.fault, params.delta_grid_rad, params.load_slice_n,
-                                   state.actuator, u_c, t_s, dt_s, substeps)
+                                   state.actuator, u_c, t_s, dt_s, substeps, params.one)
     out = once(out, params.one)
     delta = out.x_m / act.r_arm_m
     delta_eff = aircraft.effective_aileron(params.aircraft, delta, delta_c, out.nu2)
