@@ -93,7 +93,8 @@ class FddState(NamedTuple):
     band_xi: jnp.ndarray
     band_w_xi: jnp.ndarray | None  # evaluated load-weighted excitation (None without load weighting)
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
-    error_lp: jnp.ndarray  # low-passed measured tracking error u_c - u up to the previous sample (its sign is sgn(xdot))
+    # low-passed measured tracking error u_c - u up to the previous sample (its sign is sgn(xdot))
+    error_lp: jnp.ndarray
     confirm: tuple
     detect: tuple
     since_stall: jnp.ndarray
