@@ -1,7 +1,7 @@
 """mcfdd: Monte-Carlo robustness analysis of flight-actuator fault detection and diagnosis, in JAX.
 
 The public face of the package (Ossmann and Varga, 2015): load a config, run a command, read its
-tables, save its files. Importing ``mcfdd`` exposes one JAX CPU device per core (``XLA_FLAGS``)
+tables, save its files. Importing ``mcfdd`` exposes two JAX CPU devices per core (``XLA_FLAGS``)
 before JAX starts its backends; if JAX was started first, a warning says so and the devices it
 has are used (same results, slower).
 """

@@ -11,10 +11,15 @@ import sys
 import warnings
 
 FLAG = "--xla_force_host_platform_device_count"
+# XLA CPU runs a program's step loop one fusion after another, and one program per core leaves the
+# core idle between them (CPU/wall 1.57 on 2 cores); two programs per core fill those gaps: 2.06e7
+# against 1.62e7 scenario-steps/s on 4,096 x 6,000 (benchmarks/RESULTS.md), for one more compile
+# per device when the compilation cache is cold.
+DEVICES_PER_CORE = 2
 
 
 def use_all_cores() -> int | None:
-    """Expose every CPU core as a JAX device, unless ``XLA_FLAGS`` already sets the count.
+    """Expose DEVICES_PER_CORE JAX devices per CPU core, unless ``XLA_FLAGS`` already sets the count.
 
     Returns:
         The device count requested, or None when the caller's ``XLA_FLAGS`` decide, or when
@@ -23,14 +28,14 @@ def use_all_cores() -> int | None:
     flags = os.environ.get("XLA_FLAGS", "")
     if FLAG in flags:
         return None
-    count = os.cpu_count() or 1
+    count = DEVICES_PER_CORE * (os.cpu_count() or 1)
     if "jax" in sys.modules:
         if _backends_started():
             import jax
 
             if jax.device_count() < count:
                 warnings.warn(f"mcfdd: JAX started before mcfdd was imported and has {jax.device_count()} device(s) "
-                              f"for {count} CPU cores; results are the same, campaigns only slower. Import mcfdd "
+                              f"where it would use {count}; results are the same, campaigns only slower. Import mcfdd "
                               f"before using JAX, or set XLA_FLAGS={FLAG}={count} before starting Python.",
                               stacklevel=3)
             return None
@@ -39,7 +44,7 @@ def use_all_cores() -> int | None:
 
 
 def use_cores(count: int) -> int | None:
-    """Expose ``count`` CPU devices instead of one per core (a process sharing its host, e.g. a Dask worker).
+    """Expose ``count`` CPU devices instead of the default (a process sharing its host, e.g. a Dask worker).
 
     Only the count mcfdd chose at import is changed, and only before JAX starts its backends; the
     caller's own ``XLA_FLAGS`` always win. Returns the count requested, or None when unchanged.

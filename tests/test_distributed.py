@@ -25,6 +25,7 @@ import tomli_w
 import mcfdd
 from mcfdd import cli
 from mcfdd.analysis import build, scenarios
+from mcfdd.devices import DEVICES_PER_CORE
 from mcfdd.workflows import cluster as dask_cluster
 
 distributed = pytest.importorskip("distributed")
@@ -91,7 +92,7 @@ def test_local_workers_get_their_share_of_the_cores(local):
 
         return jax.device_count()
 
-    assert set(local.run(devices).values()) == {max(1, os.cpu_count() // 2)}
+    assert set(local.run(devices).values()) == {DEVICES_PER_CORE * max(1, os.cpu_count() // 2)}
 
 
 LOOPBACK_HEX = {"0100007F", "00000000000000000000000001000000", "0000000000000000FFFF00000100007F"}
@@ -195,7 +196,8 @@ def test_scheduler_and_workers_started_by_hand_give_the_in_process_table(hand_st
 
             return jax.device_count()
 
-        assert set(client.run(devices).values()) == {max(1, os.cpu_count() // 2)}, "the plugin shared the cores"
+        expected = {DEVICES_PER_CORE * max(1, os.cpu_count() // 2)}
+        assert set(client.run(devices).values()) == expected, "the plugin shared the cores"
 
 
 @pytest.fixture

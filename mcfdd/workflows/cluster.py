@@ -116,8 +116,9 @@ def dask_cluster(scheduler: str | None = None, workers: int | None = None, secur
 
 
 def local_devices(threads: int) -> int:
-    """JAX devices of each process when ``threads`` worker threads share this host's cores."""
-    return max(1, (os.cpu_count() or 1) // max(threads, 1))
+    """JAX devices of each process when ``threads`` worker threads share this host's cores
+    (:data:`mcfdd.devices.DEVICES_PER_CORE` per core of its share)."""
+    return devices.DEVICES_PER_CORE * max(1, (os.cpu_count() or 1) // max(threads, 1))
 
 
 class WorkerSetup(WorkerPlugin):
@@ -127,7 +128,7 @@ class WorkerSetup(WorkerPlugin):
         cache: the compile-cache folder (:func:`mcfdd.workflows.common.compile_cache`; None is
             the worker's own user cache folder, 'off' none).
         host_threads: threads of all the cluster's workers per host; a worker gets
-            cores // threads JAX devices (one per core with one worker thread per host).
+            DEVICES_PER_CORE x (cores // threads) JAX devices.
     """
 
     def __init__(self, cache, host_threads: dict):
