@@ -9,7 +9,7 @@ has are used (same results, slower).
 from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS before JAX starts its backends)
 from mcfdd.analysis.campaign import Status
 from mcfdd.config import ConfigError, load_config
-from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, run_campaign
+from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, campaign_executor, run_campaign
 from mcfdd.workflows.figures import FiguresResult, paper_figures
 from mcfdd.workflows.fit_lpv import LpvFitResult, fit_lpv
 from mcfdd.workflows.simulate import Histories, simulate
@@ -30,7 +30,8 @@ def __getattr__(name: str):
 
 __all__ = [
     "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError", "Status",
-    "TuneResult", "WorstCaseResult", "__version__", "dask_cluster", "dask_security", "fit_lpv", "load_config",
+    "TuneResult", "WorstCaseResult", "__version__", "campaign_executor", "dask_cluster", "dask_security", "fit_lpv",
+    "load_config",
     "paper_figures", "run_campaign",
     "simulate", "tune", "worst_case",
 ]

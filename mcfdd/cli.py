@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import math
 import sys
-import tomllib
 import warnings
 from pathlib import Path
 
@@ -19,175 +16,72 @@ def _say(message: str):
     print(message, file=sys.stderr, flush=True)
 
 
+def _print(lines):
+    for line in lines:
+        print(line)
+
+
 def _written(paths):
     for path in paths:
         _say(f"wrote {path}")
 
 
-def _num(value, spec: str = ".3g", unit: str = "") -> str:
-    """``value`` formatted, or n/a where it does not exist (nan, None)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return report.NA
-    return f"{value:{spec}}{unit}"
-
-
-def _rate(r: dict, key: str) -> str:
-    """'rate [lo, hi]' of a summary row, or n/a when no run counts."""
-    if math.isnan(r[key]):
-        return report.NA
-    return f"{r[key]:.4g} [{r[f'{key}_lo']:.3g}, {r[f'{key}_hi']:.3g}]"
-
-
-def _decisions(first: dict) -> str:
-    """First decision time of each fault model, e.g. 'pressure-loss-27 at 21.74 s'."""
-    return ", ".join(f"{model} at {t:.2f} s" for model, t in first.items()) or "none"
-
-
 def cmd_simulate(args) -> int:
     result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
-    _written(result.save(Path(args.out) if args.out else io.default_out_dir("simulate", args.config)))
-    for _, r in result.summary().iterrows():
-        print(f"{r['run']}: max |delta| {r['max_abs_delta_deg']:.2f} deg, stall {r['stall_s']:.2f} s, "
-              f"eta_stall {r['eta_stall_s']:.2f} s, first decisions {_decisions(r['first_decisions_s'])}")
+    _written(result.save(io.out_dir("simulate", args.config, args.out)))
+    _print(report.simulate_lines(result.summary()))
     return 0
-
-
-def _settings(pairs) -> dict:
-    """``--set KEY=VALUE`` flags as dotted-path overrides; VALUE is read as TOML (a bare word as a string)."""
-    overrides = {}
-    for pair in pairs or ():
-        key, sep, text = pair.partition("=")
-        if not sep or not key.strip():
-            raise config.ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.tau=0.12")
-        try:
-            overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
-        except tomllib.TOMLDecodeError:
-            overrides[key.strip()] = text
-    return overrides
 
 
 CAMPAIGN_FLAGS = ("scenarios", "seed", "chunk_size")  # flags that set the campaign.* key of their name
 
 
-def _campaign_flags(args) -> dict:
-    """Overrides of the campaign flags given, each checked against the range of its key."""
-    overrides = {}
-    for key in CAMPAIGN_FLAGS:
-        value = getattr(args, key, None)
-        if value is not None:
-            try:
-                overrides[f"campaign.{key}"] = config.field_value(config.CampaignSettings, key, value)
-            except config.Invalid as err:
-                raise config.ConfigError(f"--{key.replace('_', '-')}: {err.message} (campaign.{key})") from None
-    return overrides
-
-
 def _campaign_config(args) -> config.CampaignConfig:
-    """The campaign config with the flags' overrides and ``--fdd`` fragment; bad flags are named."""
-    overrides = _settings(getattr(args, "set", None))
-    overrides.update(_campaign_flags(args))
-    if getattr(args, "fdd", None):
-        overrides["fdd"] = config.to_dict(config.load_fdd_fragment(args.fdd))
+    """The campaign config with ``--set``, the campaign flags and the ``--fdd`` fragment; bad flags are named."""
+    flags = {key: getattr(args, key, None) for key in CAMPAIGN_FLAGS}
+    overrides = config.campaign_overrides(getattr(args, "set", None), flags, getattr(args, "fdd", None))
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
-def _check_cluster_flags(args):
-    """The TLS files are for a ``--scheduler``: given without one, they are refused before any work."""
-    if args.scheduler is None:
-        for key in ("tls_ca_file", "tls_cert", "tls_key"):
-            if getattr(args, key) is not None:
-                raise config.ConfigError(f"--{key.replace('_', '-')}: only used with --scheduler (a tls:// "
-                                         f"scheduler); give --scheduler ADDR or leave it out")
-
-
-@contextlib.contextmanager
-def _campaign_executor(args):
-    """None (chunks in this process), or a Dask client for ``--scheduler`` / ``--workers``, closed on exit."""
-    if args.scheduler is None and args.workers is None:
-        yield None
-        return
-    if args.connect_timeout <= 0:
-        raise config.ConfigError(f"--connect-timeout: {args.connect_timeout} is not allowed; expected seconds > 0")
-    try:
-        security = mcfdd.dask_security(args.tls_ca_file, args.tls_cert, args.tls_key)
-    except ImportError:
-        raise config.ConfigError("--scheduler/--workers need Dask: pip install 'mcfdd[distributed]'") from None
-    with mcfdd.dask_cluster(args.scheduler, args.workers, security, args.connect_timeout) as client:
-        yield client
-
-
-def _workers_line(workers) -> str:
-    """The per-worker throughput of a campaign as one line."""
-    return f"workers: {len(workers)}; " + ", ".join(
-        f"{w['worker']} {w['scenarios']} scen in {w['chunks']} chunk(s), {w['scenario_steps_per_s']:.3g} "
-        f"scenario-steps/s" for _, w in workers.iterrows())
-
-
 def cmd_campaign(args) -> int:
-    _check_cluster_flags(args)
     cfg = _campaign_config(args)
-    if args.out:
-        out = Path(args.out)
-    elif args.resume:
-        out = io.default_out_dir("campaign", args.config)
-    else:
-        out = io.unused_out_dir("campaign", args.config)
+    out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
     try:
-        with _campaign_executor(args) as executor:
+        with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
+                                     args.connect_timeout) as executor:
             result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
                                         executor=executor, compile_cache=args.compile_cache)
     except KeyboardInterrupt:
         _say(f"\ninterrupted: finished chunks are kept in {out / 'scenarios'}; continue with --resume")
         return 130
-    overall = result.overall()
-    stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
-    print(f"{overall['runs']} scenarios: FAR {_rate(overall, 'far')}, MDR {_rate(overall, 'mdr')}{stalls}")
-    if executor is not None and len(result.workers):  # in process, the one row is this process
-        print(_workers_line(result.workers))
+    _print(report.campaign_lines(result.overall(), None if executor is None else result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
 
 
 def cmd_fit_lpv(args) -> int:
     result = mcfdd.fit_lpv(args.config)
-    _written(result.save(Path(args.out) if args.out else io.default_out_dir("fit-lpv", args.config)))
-    print(f"{'model':<18s} {'k0 1/s':>7s}  {'training RMS / max %':>21s}  {'validation RMS / max %':>23s}  "
-          f"near-stall runs")
-    tr, va = result.error_summary["training"], result.error_summary["validation"]
-    for i, name in enumerate(result.models):
-        print(f"{name:<18s} {float(result.bank.k0[i]):7.3f}  {100 * tr['rms'][i]:10.3f} / {100 * tr['max'][i]:7.3f}  "
-              f"{100 * va['rms'][i]:12.3f} / {100 * va['max'][i]:7.3f}  {tr['near_stall_runs'][i]} / "
-              f"{va['near_stall_runs'][i]}")
-    print("smallest H-inf distance |k_j - k_i| / (k_i + k_j) of neighbouring models over the envelope grid")
-    print("(overall; where the nonlinear models are at least 0.01 apart and keep the pressure margin):")
-    for d in result.distances:
-        print(f"  {result.models[d.i]:>18s} - {result.models[d.j]:<18s} {d.overall:.4f}   {d.separated:.4f} "
-              f"(nonlinear there {d.nonlinear:.4f})")
+    _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
+    _print(report.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
     return 0
 
 
 def cmd_worst_case(args) -> int:
     result = mcfdd.worst_case(args.config)
-    out = Path(args.out) if args.out else io.default_out_dir("worst-case", args.config)
+    out = io.out_dir("worst-case", args.config, args.out)
     result.save(out, f"Worst case {Path(args.config).stem}")
-    for _, r in result.summary.iterrows():
-        print(f"{r['method']}: {r['simulations']} simulations, {r['run_time_s']:.1f} s, worst "
-              f"{_num(r[result.value], '.5g')}")
+    _print(report.worst_case_lines(result.summary, result.value))
     print(f"report: {out / 'report.md'}")
     return 0
 
 
 def cmd_tune(args) -> int:
-    out = Path(args.out) if args.out else io.unused_out_dir("tune", args.config)
+    out = io.out_dir("tune", args.config, args.out, new=True)
     if out.exists() and any(out.iterdir()):
         raise mcfdd.OutputFolderError(f"--out: {out} exists and is not empty; choose another folder")
     result = mcfdd.tune(args.config)
     result.save(out)
-    for _, r in result.validation.iterrows():
-        print(f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
-              f"{r['missed']}/{r['faulty_runs']}, detection time median "
-              f"{_num(r['detection_time_median_s'], unit=' s')}, stall "
-              f"detector above tau outside stalls in {r['stall_detector_fires']} runs")
+    _print(report.tune_lines(result.validation))
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
     return 0
 
@@ -195,19 +89,7 @@ def cmd_tune(args) -> int:
 def cmd_figures(args) -> int:
     result = mcfdd.paper_figures(args.configs)
     _written(result.save(Path(args.out) if args.out else Path("results") / "figures"))
-    sweep = result.sweep
-    for fam in ("surface", "leakage"):
-        rows = sweep[sweep["family"] == fam]
-        for v in result.grid[fam]:
-            row = rows.iloc[(rows["fault_size"] - v).abs().argmin()]
-            print(f"fig4 {fam} {100 * row['fault_size']:.0f} %: decided {row['detected_model_name']}, "
-                  f"first fault model after {_num(row['detection_time_s'], '.2f', ' s')}, {row['switches']} switch(es)")
-    for _, e in result.stall_events.iterrows():
-        parts = [f"{m} none" if math.isnan(e[f"latency_{m}_s"]) else f"{m} {e[f'latency_{m}_s']:.2f} s"
-                 for m in ("signal", "model")]
-        print(f"stall event {e['onset_s']:.2f}-{e['end_s']:.2f} s: eta latency " + ", ".join(parts))
-    for method, seconds in result.eta_outside_s.items():
-        print(f"eta ({method}) outside stall events: {seconds:.2f} s")
+    _print(report.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
     return 0
 
 

@@ -1165,3 +1165,34 @@ def fdd_fragment(fdd: FddConfig, comment: str = "") -> str:
 def load_fdd_fragment(path) -> FddConfig:
     """The [fdd] table of a fragment file, parsed like a config's; errors name the file and key."""
     return load(FddFragment, path).fdd
+
+
+def set_overrides(pairs) -> dict:
+    """``KEY=VALUE`` texts (the ``--set`` flag) as dotted-path overrides; VALUE is read as TOML (a bare word
+    as a string)."""
+    overrides = {}
+    for pair in pairs or ():
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.tau=0.12")
+        try:
+            overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError:
+            overrides[key.strip()] = text
+    return overrides
+
+
+def campaign_overrides(set_pairs=(), flags: dict | None = None, fdd_path=None) -> dict:
+    """The overrides of a campaign's command line: ``--set`` pairs, then the ``campaign.*`` flags given (each
+    checked against its key's range, the flag named in the error), then an FDD fragment replacing [fdd]."""
+    overrides = set_overrides(set_pairs)
+    for key, value in (flags or {}).items():
+        if value is not None:
+            try:
+                overrides[f"campaign.{key}"] = field_value(CampaignSettings, key, value)
+            except Invalid as err:
+                raise ConfigError(f"--{key.replace('_', '-')}: {err.message} (campaign.{key})") from None
+    if fdd_path:
+        overrides["fdd"] = to_dict(load_fdd_fragment(fdd_path))
+    return overrides
+

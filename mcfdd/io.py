@@ -87,6 +87,14 @@ def unused_out_dir(command: str, config_path) -> Path:
     return candidate
 
 
+def out_dir(command: str, config_path, out=None, new: bool = False) -> Path:
+    """The output folder of a command: ``out`` if given, else ``results/<command>-<config>`` (``new``: the
+    first of it, ``...-2``, ... not yet there)."""
+    if out:
+        return Path(out)
+    return unused_out_dir(command, config_path) if new else default_out_dir(command, config_path)
+
+
 def lock_folder(folder):
     """An exclusive lock on ``folder`` (made if missing), or None while another process holds it.
 

@@ -289,7 +289,8 @@ def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
     assert "nan" not in text and "n/a" in text
     assert "stall events" not in text and "worst" not in text  # no stall columns without a stall load
     overall = summ[summ["stratum"] == "overall"].iloc[0].to_dict()
-    assert cli._rate(overall, "mdr") == "n/a" and cli._rate(overall, "far").startswith(f"{overall['far']:.4g} [")
-    assert cli._decisions({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
-    assert cli._decisions({}) == "none"
-    assert cli._num(float("nan"), ".2f", " s") == "n/a" and cli._num(1.234, ".2f", " s") == "1.23 s"
+    assert report.rate_text(overall, "mdr") == "n/a"
+    assert report.rate_text(overall, "far").startswith(f"{overall['far']:.4g} [")
+    assert report.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
+    assert report.decisions_text({}) == "none"
+    assert report.value_text(float("nan"), ".2f", " s") == "n/a" and report.value_text(1.234, ".2f", " s") == "1.23 s"

@@ -330,6 +330,31 @@ class CampaignResult:
         return written
 
 
+@contextlib.contextmanager
+def campaign_executor(scheduler: str | None = None, workers: int | None = None, tls_ca_file=None, tls_cert=None,
+                      tls_key=None, connect_timeout_s: float = 10.0):
+    """Where a campaign's chunks run, for ``run_campaign(..., executor=...)``: None (this process) without
+    ``scheduler`` and ``workers``, else a Dask client of that scheduler or of a local cluster of ``workers``
+    processes, closed on exit. The TLS files are for a scheduler only; errors name the command's flags."""
+    if scheduler is None:
+        for key, value in (("tls_ca_file", tls_ca_file), ("tls_cert", tls_cert), ("tls_key", tls_key)):
+            if value is not None:
+                raise config.ConfigError(f"--{key.replace('_', '-')}: only used with --scheduler (a tls:// "
+                                         f"scheduler); give --scheduler ADDR or leave it out")
+    if scheduler is None and workers is None:
+        yield None
+        return
+    if connect_timeout_s <= 0:
+        raise config.ConfigError(f"--connect-timeout: {connect_timeout_s} is not allowed; expected seconds > 0")
+    try:
+        from mcfdd.workflows import cluster
+    except ImportError:
+        raise config.ConfigError("--scheduler/--workers need Dask: pip install 'mcfdd[distributed]'") from None
+    with cluster.dask_cluster(scheduler, workers, cluster.security(tls_ca_file, tls_cert, tls_key),
+                              connect_timeout_s) as client:
+        yield client
+
+
 def chunk_task(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: build.DesignPlan):
     """:func:`run_chunk` as a task: (its table, the process that ran it as 'host:pid', seconds taken)."""
     start = time.perf_counter()
