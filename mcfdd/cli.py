@@ -10,6 +10,7 @@ from pathlib import Path
 
 import mcfdd
 from mcfdd import config, io, report
+from mcfdd.workflows import common
 
 
 def _say(message: str):
@@ -157,13 +158,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_out_flag(args):
-    """``--out`` must name a folder (or nothing yet): refused before any work."""
-    out = getattr(args, "out", None)
-    if out and Path(out).exists() and not Path(out).is_dir():
-        raise config.ConfigError(f"--out: {out} exists and is not a folder; choose a folder")
-
-
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"mcfdd: warning: {message}\n"
 
@@ -172,7 +166,7 @@ def main(argv=None) -> int:
     warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
     try:
-        _check_out_flag(args)
+        common.check_folder(getattr(args, "out", None), "--out")
         return args.func(args)
     except config.ConfigError as err:
         print(f"mcfdd: configuration error: {err}", file=sys.stderr)

@@ -22,7 +22,8 @@ from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows import common
-from mcfdd.workflows.common import DEG_PER_RAD, as_config, dtype_of, load_bank, precision, save_figure
+from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, check_folder, dtype_of, load_bank,
+                                    precision, save_figure)
 
 CAMPAIGN_STATE = "campaign.json"
 # Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
@@ -39,10 +40,6 @@ PLOTS = {
     "stall_latency": "cumulative distribution of the worst stall-identification latency per run and method, "
                      "with the stall window",
 }
-
-
-class OutputFolderError(config.ConfigError):
-    """An output folder that cannot be used: not empty without resume, or holding another campaign."""
 
 
 class CampaignSetup(NamedTuple):
@@ -186,8 +183,7 @@ def _writing(out: Path, advice: str):
 
 def _check_out(out: Path, resume: bool):
     """Refuse an output path that cannot hold this campaign, before anything is made."""
-    if out.exists() and not out.is_dir():
-        raise OutputFolderError(f"out: {out} exists and is not a folder; choose a folder")
+    check_folder(out, "out")
     if resume and not (out / CAMPAIGN_STATE).is_file():
         raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
 
@@ -280,8 +276,9 @@ class CampaignResult:
 
         if name not in PLOTS:
             raise ValueError(f"plot: {name!r} is not one of {', '.join(PLOTS)}")
-        if name in self.left_out():
-            raise ValueError(f"plot: {name!r} is not drawn for this campaign: {self.left_out()[name]}")
+        why = self.left_out().get(name)
+        if why:
+            raise ValueError(f"plot: {name!r} is not drawn for this campaign: {why}")
         if name.startswith("rates_by_"):
             rates = ("far", "mdr") if self.overall()["faulty_runs"] > 0 else ("far",)
             return plots.rates_by_stratum(self.summary, name[len("rates_by_"):], rates)

@@ -10,6 +10,16 @@ import numpy as np
 
 from mcfdd import config, io
 
+
+class OutputFolderError(config.ConfigError):
+    """An output folder that cannot be used: not a folder, not empty without resume, or holding another campaign."""
+
+
+def check_folder(out, name: str):
+    """Refuse an output path that exists and is not a folder (``name``: the key or flag that gave it)."""
+    if out and Path(out).exists() and not Path(out).is_dir():
+        raise OutputFolderError(f"{name}: {out} exists and is not a folder; choose a folder")
+
 DEG_PER_RAD = 180.0 / np.pi
 
 
