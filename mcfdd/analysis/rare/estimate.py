@@ -6,7 +6,8 @@ two-sided interval at a stated confidence c (z = Phi^-1((1 + c) / 2)), of one of
 - ``"lognormal"`` (subset simulation): ln p_hat taken as normal with variance
   s^2 = ln(1 + delta^2) and mean ln P - s^2 / 2 (so that p_hat is unbiased), giving
   ``[p_hat exp(s^2/2 - z s), p_hat exp(s^2/2 + z s)]``: positive, and skewed as the product of
-  the levels' conditional probabilities is;
+  the levels' conditional probabilities is; when s^2 is itself estimated from few independent
+  groups (``dof`` finite), z is Student's t quantile with ``dof`` degrees of freedom;
 - ``"normal"`` (importance sampling): the central limit interval ``p_hat (1 -+ z delta)``, its
   lower end clipped at 0;
 - ``"clopper-pearson"`` (plain Monte Carlo): the exact binomial interval of k hits in n runs
@@ -29,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from mcfdd.analysis.metrics import clopper_pearson
 
@@ -38,7 +40,8 @@ INTERVALS = ("lognormal", "normal", "clopper-pearson", "delta", "union")
 class Level(NamedTuple):
     """One level of subset simulation: F_j = {g(u) > threshold}, P(F_j | F_{j-1}) = probability.
 
-    ``gamma`` is the chain-correlation factor of the level's c.o.v. (Au and Beck 2001, eq. 29),
+    ``cov`` is the level's c.o.v. and ``gamma`` its chain-correlation factor (Au and Beck 2001,
+    eqs. 27-29), ``lineages`` the number of level-0 samples the level's samples descend from,
     ``acceptance`` the mean acceptance rate of the chain moves that produced the level's samples
     and ``scale`` the proposal scale lambda they ended with (nan for the Monte Carlo level 0).
     """
@@ -47,6 +50,7 @@ class Level(NamedTuple):
     probability: float
     cov: float
     gamma: float
+    lineages: int
     acceptance: float
     scale: float
 
@@ -64,6 +68,7 @@ class Estimate:
         kind: how the interval is computed (see the module docstring).
         n_simulations: evaluations of g spent (a gradient counted as one evaluation).
         hits: failure samples (g > 0) among the last level's, the importance or the Monte Carlo samples.
+        dof: degrees of freedom of the variance estimate behind ``interval`` (inf: z is normal).
         reached: False when subset simulation stopped at its level cap without a sample in F: then
             ``estimate`` is p0^L = P(g > b_L) for the last threshold b_L < 0, an upper bound of P(F)
             (an estimate of one), and ``interval`` is (0, its upper end).
@@ -83,6 +88,7 @@ class Estimate:
     kind: str
     n_simulations: int
     hits: int
+    dof: float = float("inf")
     reached: bool = True
     levels: tuple[Level, ...] = ()
     failure_points: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
@@ -98,7 +104,7 @@ class Estimate:
             return float(lo), float(hi)
         if self.kind in ("delta", "union"):
             return combined_interval(self.components, self.coefficients, confidence, self.kind)
-        lo, hi = interval(self.estimate, self.cov, confidence, self.kind)
+        lo, hi = interval(self.estimate, self.cov, confidence, self.kind, self.dof)
         return (0.0, hi) if not self.reached else (lo, hi)
 
     def covers(self, truth: float) -> bool:
@@ -106,16 +112,18 @@ class Estimate:
         return bool(self.interval[0] <= truth <= self.interval[1])
 
 
-def z_value(confidence: float) -> float:
-    """Phi^-1((1 + confidence) / 2): the half-width in standard deviations of a two-sided interval."""
+def z_value(confidence: float, dof: float = float("inf")) -> float:
+    """The half-width in standard deviations of a two-sided interval: Phi^-1((1 + c) / 2), or Student's t."""
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
-    return float(norm.ppf(0.5 + confidence / 2.0))
+    q = 0.5 + confidence / 2.0
+    return float(norm.ppf(q) if np.isinf(dof) else student_t.ppf(q, max(dof, 1.0)))
 
 
-def interval(estimate: float, cov: float, confidence: float, kind: str) -> tuple[float, float]:
+def interval(estimate: float, cov: float, confidence: float, kind: str,
+             dof: float = float("inf")) -> tuple[float, float]:
     """(lo, hi) of a ``"lognormal"`` or ``"normal"`` interval from p_hat and its c.o.v."""
-    z = z_value(confidence)
+    z = z_value(confidence, dof)
     if not np.isfinite(cov) or estimate <= 0.0:
         return 0.0, float("inf")
     if kind == "lognormal":
