@@ -63,7 +63,8 @@ def ot_importance(problem, points, n, seed):
     d = problem.d
     parts = [ot.Normal(ot.Point(p), ot.CovarianceMatrix(d)) for p in points]
     proposal = parts[0] if len(parts) == 1 else ot.Mixture(parts, [norm.sf(np.linalg.norm(p)) for p in points])
-    algo = ot.ProbabilitySimulationAlgorithm(ot.StandardEvent(ot_event(problem)), ot.ImportanceSamplingExperiment(proposal))
+    experiment = ot.ImportanceSamplingExperiment(proposal)
+    algo = ot.ProbabilitySimulationAlgorithm(ot.StandardEvent(ot_event(problem)), experiment)
     algo.setMaximumOuterSampling(n // 100)
     algo.setBlockSize(100)
     algo.setMaximumCoefficientOfVariation(-1.0)
