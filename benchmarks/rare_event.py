@@ -13,7 +13,7 @@ for a c.o.v. of 0.3 at 1e-6.
 coverage of its interval with that of Au and Beck's independent-level c.o.v. (see
 :mod:`mcfdd.analysis.rare.subset`).
 
-    python benchmarks/rare_event.py [--repeats 20] [--coverage 200]
+    python benchmarks/rare_event.py [--repeats 20] [--coverage 200] [--problems linear-2 linear-10000 union]
 """
 
 from __future__ import annotations
@@ -74,9 +74,12 @@ def study(problem, method, n, repeats):
                 first_s=with_compile, run_s=per_run)
 
 
-def efficiency(repeats):
-    problems = {"linear d=2": Linear(2), "linear d=10000": Linear(10_000), "union d=2": Union()}
-    ladders = {"subset": (250, 500, 1000, 2000), "importance": (50, 100, 200, 400)}
+PROBLEMS = {"linear-2": lambda: Linear(2), "linear-10000": lambda: Linear(10_000), "union": Union}
+
+
+def efficiency(repeats, names):
+    problems = {name: PROBLEMS[name]() for name in names}
+    ladders = {"subset": (250, 500, 1000, 2000, 4000), "importance": (50, 100, 200, 400)}
     print(f"{'problem':16} {'method':10} {'n':>5} {'simulations':>11} {'emp. cov':>8} {'stated':>7} "
           f"{'cover':>6} {'run s':>7} {'1st s':>7}  MC runs for this cov")
     for name, problem in problems.items():
@@ -110,8 +113,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=20, help="seeds per estimator and size")
     parser.add_argument("--coverage", type=int, default=0, help="seeds of the coverage study (0: skip)")
+    parser.add_argument("--problems", nargs="+", choices=list(PROBLEMS), default=list(PROBLEMS))
     args = parser.parse_args()
-    efficiency(args.repeats)
+    efficiency(args.repeats, args.problems)
     if args.coverage:
         coverage(args.coverage)
 
