@@ -248,6 +248,19 @@ class CampaignResult:
         self.confusion = report.confusion(scenarios, list(models))
         self.gaps = report.gaps(scenarios, deg_per_m)
         self.detectability = report.detectability(scenarios)
+        self._drivers = None
+
+    def drivers(self):
+        """What drives the false alarms and misses: (regional sensitivity, worst witnesses), tidy tables of the
+        campaign's own runs (:func:`mcfdd.workflows.sensitivity.tables.regional_table`), computed once."""
+        if self._drivers is None:
+            from mcfdd.workflows.sensitivity import tables
+
+            s = self.config.sensitivity
+            self._drivers = (tables.regional_table(self.config, self.scenarios, s.bootstrap, s.confidence,
+                                                   self.config.campaign.seed if s.seed is None else s.seed),
+                             tables.witnesses(self.scenarios))
+        return self._drivers
 
     def overall(self) -> dict:
         """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
@@ -325,6 +338,7 @@ class CampaignResult:
                                                                          self.gaps, self.meta)
                                      + report.detectability_markdown(self.detectability, self.scenarios)
                                      + report.stall_scoring_markdown(self.scenarios)
+                                     + report.drivers_markdown(*self.drivers())
                                      + report.figures_markdown(drawn, left_out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
