@@ -479,7 +479,7 @@ def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str 
              "larger values, with its bootstrap interval; event rates per level of a list.", ""]
     for outcome, g in regional.groupby("outcome", sort=False):
         whole = g.loc[g["runs"].idxmax()]  # a fault-size parameter counts within its fault kind's runs only
-        few = " (few events: an indication)" if whole["events"] < 10 else ""
+        few = "; few events: an indication" if whole["events"] < 10 else ""
         lines.append(f"- {outcome.replace('_', ' ')} ({whole['events']} of {whole['runs']} runs{few}): " + "; ".join(
             f"{r.factor} D {r.statistic:.2f} (p {r.p_value:.2g}), " + (
                 f"delta {r.effect:+.2f} [{r.effect_lo:+.2f}, {r.effect_hi:+.2f}]" if r.kind == "continuous" else r.rates)

@@ -25,7 +25,9 @@ campaign designs.
   for inputs uniform on [0, 1], S_Ti <= nu_i / (pi^2 V) (Lamboni et al. 2013, the Poincare
   constant of the unit interval). The bound ranks like S_Ti where Y is close to additive and
   monotonic in each input, and can rank otherwise: for the Ishigami function nu ranks x2 > x3 > x1
-  while S_T ranks x1 > x2 > x3 (both analytic).
+  while S_T ranks x1 > x2 > x3 (both analytic). Through a simulation, gradients of a smooth
+  statistic miss what acts only through jumps of the hard one (a sample entering a gate), and
+  steep local slopes (the timing of a command's edges) weigh heavily in nu: a screen, not a ranking.
 - Regional sensitivity for a binary event (Hornberger and Spear 1981): per input, its values in the
   runs with the event against the others: the two-sample Kolmogorov-Smirnov distance D with its
   p-value (``scipy.stats.ks_2samp``) and Cliff's delta ``2 P(X_event > X_other) + P(=) - 1``

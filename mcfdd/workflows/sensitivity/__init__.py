@@ -79,7 +79,7 @@ class SensitivityResult:
                                      "Sobol' index (share of the outcome's variance)", TOP)
         if name == "screen":
             return plots.ranked_bars(self.screen, [("bound", "DGSM bound on S_T")],
-                                     "nu / (pi^2 V), an upper bound on the total index", TOP)
+                                     "nu / (pi^2 V), an upper bound on the total index (log scale)", TOP, log=True)
         return plots.ranked_bars(self.regional.assign(stratum=""), [("statistic", "D")],
                                  "distance D, runs with the event against the others (KS or total variation)", TOP)
 
@@ -93,8 +93,8 @@ class SensitivityResult:
         for (outcome, stratum), g in self.screen.groupby(["outcome", "stratum"], sort=False):
             out.append(f"{outcome} [{stratum}] screen: {g.iloc[0]['factor']} first (nu {g.iloc[0]['nu']:.3g})")
         for outcome, g in self.regional.groupby("outcome", sort=False):
-            r = g.iloc[0]
-            out.append(f"{outcome} ({r['events']} of {r['runs']} runs): {r['factor']} D {r['statistic']:.2f} "
+            r, whole = g.iloc[0], g.loc[g["runs"].idxmax()]
+            out.append(f"{outcome} ({whole['events']} of {whole['runs']} runs): {r['factor']} D {r['statistic']:.2f} "
                        f"(p {r['p_value']:.2g})")
         return out
 

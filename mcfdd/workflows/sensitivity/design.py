@@ -20,7 +20,7 @@ and what a run where the column is undefined counts as (a number, another column
 base point is then left out); those with a smooth counterpart in :mod:`mcfdd.analysis.worst_case`
 get the gradient screen (DGSM through the simulation, at the A points of each stratum). Binary
 outcomes (:data:`EVENTS`) get the regional sensitivity, from the A and B runs here and from every
-run in each campaign's summary.md (:func:`regional_table`, :func:`witnesses`).
+run in each campaign's summary.md (:mod:`mcfdd.workflows.sensitivity.tables`).
 """
 
 from __future__ import annotations
@@ -92,7 +92,8 @@ def scored(t) -> np.ndarray:
 
 
 EVENTS = {
-    "false_alarm": Event("false_alarm", scored, "LOE false alarms (runs scored)"),
+    "false_alarm": Event("false_alarm", lambda t: scored(t) & (t["fault_kind"].to_numpy() == "none"),
+                         "LOE false alarms (fault-free runs)"),
     "missed": Event("missed", lambda t: scored(t) & t["fault_kind"].isin(config.PARAMETRIC).to_numpy()
                     & (t["true_model"].to_numpy() > 0), "missed detections (runs with a parametric fault)"),
 }

@@ -25,7 +25,7 @@ def indices_table(d: Design, table, names, s: config.SensitivityConfig, notes: l
     """First-order and total indices with intervals, one row per (outcome, stratum, factor); tidy."""
     import pandas as pd
 
-    out = []
+    out, absent = [], {}
     for k, (name, (label, kind, rows)) in enumerate((n, st) for n in names for st in strata(d, table)):
         outcome = OUTCOMES[name]
         if not applies(outcome, kind):
@@ -33,6 +33,9 @@ def indices_table(d: Design, table, names, s: config.SensitivityConfig, notes: l
         y = outcome_values(outcome, rows).reshape(d.blocks, d.samples)
         keep = np.isfinite(y).all(axis=0)
         used = int(keep.sum())
+        if used == 0:
+            absent.setdefault(name, []).append(label)
+            continue
         if used < 8:
             notes.append(f"{name}, {label}: {used} of {d.samples} base points have the outcome in all their runs "
                          f"(8 needed); not analysed")
@@ -49,6 +52,8 @@ def indices_table(d: Design, table, names, s: config.SensitivityConfig, notes: l
                  **{key: float(r[key][i]) for key in ("first", "first_lo", "first_hi", "total", "total_lo", "total_hi")},
                  "base_points": used, "runs": used * d.blocks, "mean": r["mean"], "std": math.sqrt(r["variance"])}
                 for i, f in enumerate(d.factors) if acts(f, kind)]
+    notes += [f"{name}: no base point has it in all its runs (it needs {OUTCOMES[name].what.rsplit('; ', 1)[-1]}) "
+              f"in {', '.join(labels)}; not analysed" for name, labels in absent.items()]
     return _ranked(pd.DataFrame(out, columns=INDEX_COLUMNS), "total")
 
 
@@ -151,7 +156,8 @@ def regional_table(cfg: config.CampaignConfig, table, resamples: int, confidence
     Each axis's values in the runs with the event against the other runs where it can happen (a
     fault-size axis within its fault kind's runs); axes are ranked per outcome by the distance D
     (Kolmogorov-Smirnov for ranges, total variation for lists). Outcomes without an event, or
-    where every run has it, give no rows. Returns a tidy table (:data:`REGIONAL_COLUMNS`).
+    where every run has it, and axes with one value in those runs give no rows. Returns a tidy
+    table (:data:`REGIONAL_COLUMNS`).
     """
     import pandas as pd
 
@@ -164,9 +170,9 @@ def regional_table(cfg: config.CampaignConfig, table, resamples: int, confidence
             rows = runs & ((table["fault_kind"] == config.SIZE_COLUMNS[axis.name]).to_numpy()
                            if axis.name in config.SIZE_COLUMNS else True)
             hit = happened[rows]
-            if not hit.any() or hit.all():
-                continue
             x = _column(table[rows], axis)
+            if not hit.any() or hit.all() or len(np.unique(x)) < 2:
+                continue
             common = {"outcome": name, "factor": axis.name, "events": int(hit.sum()), "runs": int(rows.sum())}
             if axis.kind == "range":
                 out.append({**common, "kind": "continuous", "test": "ks",
