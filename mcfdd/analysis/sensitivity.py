@@ -172,34 +172,52 @@ def dgsm(gradients, values, resamples: int = 1000, confidence: float = 0.95, see
             "bound_lo": low[dim:], "bound_hi": high[dim:]}
 
 
+def _resampled_counts(rng, counts, b: int) -> np.ndarray:
+    """(b, cells) counts per cell of b resamples with replacement of a sample with ``counts`` points per cell.
+
+    Multinomial draws where the cells are few against the points, else the points themselves are
+    drawn (both are the same law; each is the faster in its case).
+    """
+    n = int(counts.sum())
+    if 4 * len(counts) < n:
+        return rng.multinomial(n, counts / n, size=b)
+    labels = np.repeat(np.arange(len(counts)), counts)[rng.integers(0, n, (b, n))]
+    return np.bincount((labels + np.arange(b)[:, None] * len(counts)).ravel(), minlength=b * len(counts)).reshape(b, -1)
+
+
 def cliffs_delta(x_event, x_other, resamples: int = 1000, confidence: float = 0.95, seed: int = 0) -> tuple:
     """Cliff's delta of two samples with a percentile bootstrap interval resampling each sample.
 
-    delta = 2 A - 1 with A = P(X_event > X_other) + P(X_event = X_other) / 2. A resample's A is
-    the resampled events' mean share of resampled others below them (ties half), from the counts
-    of the others' resample over their sorted values: O(n) per resample, no sorting.
+    delta = 2 A - 1 with A = P(X_event > X_other) + P(X_event = X_other) / 2. The bootstrap
+    resamples both samples with replacement, drawn in law rather than point by point: with S the
+    smaller sample and v its m distinct values, a resample of the larger one enters A only through
+    its counts below, at and between the v (2 m + 1 cells, multinomial with the sample's cell
+    shares), and a resample of S through its counts at the v.
 
     Returns (delta, low, high).
     """
-    x_e, x_o = np.asarray(x_event, dtype=float), np.sort(np.asarray(x_other, dtype=float))
-    n_e, n_o = len(x_e), len(x_o)
-    below, upto = np.searchsorted(x_o, x_e, "left"), np.searchsorted(x_o, x_e, "right")
-    delta = float(np.mean(below + upto) / n_o - 1.0)
+    x_e, x_o = np.asarray(x_event, dtype=float), np.asarray(x_other, dtype=float)
+    swap = len(x_e) > len(x_o)
+    small, large = (x_o, x_e) if swap else (x_e, x_o)
+    values, multiplicity = np.unique(small, return_counts=True)
+    m = len(values)
+    left, right = np.searchsorted(values, large, "left"), np.searchsorted(values, large, "right")
+    cells = np.bincount(2 * left + (right > left), minlength=2 * m + 1)  # below v_0, at v_0, between, ..., above
+    below_at = np.cumsum(cells)[0:2 * m:2] + 0.5 * cells[1::2]  # per distinct value: larger ones below, half at it
+    a = np.sum(multiplicity * below_at) / (len(small) * len(large))
+    sign = -1.0 if swap else 1.0
     rng = np.random.default_rng(seed)
-    batch = max(1, _BATCH_ELEMENTS // (n_o + n_e))
+    batch = max(1, _BATCH_ELEMENTS // (3 * m + len(x_e) + len(x_o)))
     deltas = []
     for start in range(0, resamples, batch):
         b = min(batch, resamples - start)
-        rows = np.arange(b)[:, None]
-        counts_o = np.bincount((rng.integers(0, n_o, (b, n_o)) + rows * n_o).ravel(), minlength=b * n_o)
-        cumulative = np.zeros((b, n_o + 1))
-        cumulative[:, 1:] = np.cumsum(counts_o.reshape(b, n_o), axis=1)
-        share = (cumulative[:, below] + cumulative[:, upto]) / n_o  # (b, n_e): twice the share below
-        counts_e = np.bincount((rng.integers(0, n_e, (b, n_e)) + rows * n_e).ravel(), minlength=b * n_e)
-        deltas.append(np.sum(counts_e.reshape(b, n_e) * share, axis=1) / n_e - 1.0)
+        drawn = _resampled_counts(rng, cells, b)
+        score = np.cumsum(drawn, axis=1)[:, 0:2 * m:2] + 0.5 * drawn[:, 1::2]
+        weights = _resampled_counts(rng, multiplicity, b)
+        deltas.append(sign * (2.0 * np.sum(weights * score, axis=1) / (len(small) * len(large)) - 1.0))
     deltas = np.concatenate(deltas)
     tail = 50.0 * (1.0 - confidence)
-    return delta, float(np.percentile(deltas, tail)), float(np.percentile(deltas, 100.0 - tail))
+    return sign * (2.0 * a - 1.0), float(np.percentile(deltas, tail)), float(np.percentile(deltas, 100.0 - tail))
 
 
 def regional_continuous(x, event, resamples: int = 1000, confidence: float = 0.95, seed: int = 0) -> dict:
