@@ -111,7 +111,10 @@ def test_dgsm_of_ishigami_matches_its_closed_form_and_bounds_the_total_indices()
 
 def test_dgsm_ranks_like_the_total_indices_on_the_g_function():
     a = jnp.asarray([0.0, 0.5, 3.0, 9.0])
-    fn = lambda u: g_function(u, a)  # noqa: E731
+
+    def fn(u):
+        return g_function(u, a)
+
     vi = 1 / (3 * (1 + np.asarray(a)) ** 2)
     total = vi * np.prod(1 + vi) / (1 + vi) / (np.prod(1 + vi) - 1)
     screen = dgsm_of(fn, 1024, 4, 3)

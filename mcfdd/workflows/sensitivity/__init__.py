@@ -203,5 +203,3 @@ def markdown(result: SensitivityResult, drawn) -> str:
     lines += [f"- `{name}.png` left out: {why}." for name, why in result.left_out().items()]
     return "\n".join(lines) + "\n"
 
-
-__all__ = ["SensitivityResult", "sensitivity", "design", "outcome_names", "PLOTS"]
