@@ -690,8 +690,8 @@ class SensitivityConfig(Section):
     """What drives a campaign's verdicts (``mcfdd sensitivity``; its bootstrap and seed also serve the regional
     section of every campaign's summary.md)."""
 
-    outcomes: tuple[str, ...] = spec((), doc="continuous outcomes analysed, e.g. [\"loe_ratio0_max_pre\"]; empty: "
-                                     "each one of mcfdd.workflows.sensitivity.DEFAULT_OUTCOMES the space has runs for")
+    outcomes: tuple[str, ...] = spec((), doc="continuous outcomes analysed, e.g. [\"loe_ratio0_max_pre\"]; empty: each "
+                                     "of mcfdd.workflows.sensitivity.study.DEFAULT_OUTCOMES the space has runs for")
     method: Literal["pick_freeze", "screen"] = spec(
         "pick_freeze", doc="pick_freeze: variance-based indices (samples x (factors + 2) runs per stratum) and the "
         "gradient screen; screen: the gradient screen (DGSM) alone (samples runs and gradients per stratum)")

@@ -3,9 +3,9 @@
 On any campaign config, with its optional [sensitivity] table (:class:`mcfdd.config.SensitivityConfig`):
 
 - first-order and total Sobol' indices, with bootstrap intervals, of the continuous outcomes that
-  decide a verdict (:data:`~mcfdd.workflows.sensitivity.design.OUTCOMES`) over the space's sampled
+  decide a verdict (:data:`~mcfdd.workflows.sensitivity.study.OUTCOMES`) over the space's sampled
   axes and the noise path as one group, from a pick-freeze design run as a campaign
-  (:mod:`~mcfdd.workflows.sensitivity.design`);
+  (:mod:`~mcfdd.workflows.sensitivity.study`);
 - the gradient screen (DGSM, with the Sobol'-Kucherenko bound on the total index) of the outcomes
   with a smooth counterpart, by JAX gradients through the simulation at each stratum's A points;
 - the regional sensitivity of false alarms and misses in the design's independent runs (A and B).
@@ -25,7 +25,7 @@ from mcfdd.progress import note
 from mcfdd.workflows import campaign as campaign_wf
 from mcfdd.workflows.common import OutputFolderError, as_config, check_folder, precision, save_figure
 from mcfdd.workflows.sensitivity import tables
-from mcfdd.workflows.sensitivity.design import NOISE, OUTCOMES, Design, design, outcome_names
+from mcfdd.workflows.sensitivity.study import NOISE, OUTCOMES, Design, design, outcome_names
 
 PLOTS = {
     "indices": "total (dark) and first-order (light) Sobol' indices per factor, ranked, with their intervals; one "
@@ -50,7 +50,7 @@ class SensitivityResult:
             medians, ``rates`` per level (categorical factors).
         witnesses: the worst false alarms and misses of the design's independent runs.
         runs: the :class:`mcfdd.CampaignResult` of the design's runs.
-        design: the :class:`~mcfdd.workflows.sensitivity.design.Design`.
+        design: the :class:`~mcfdd.workflows.sensitivity.study.Design`.
         notes: what was left out or conditional, and the screen's agreement with the runs.
         meta: provenance (resolved config, seed, version, git revision, factors, strata).
     """

@@ -1,6 +1,6 @@
 """The tables of a sensitivity analysis: indices, gradient screen, regional sensitivity, witnesses (tidy).
 
-Computed from the design's run table (:mod:`mcfdd.workflows.sensitivity.design`) by
+Computed from the design's run table (:mod:`mcfdd.workflows.sensitivity.study`) by
 :mod:`mcfdd.analysis.sensitivity`; :func:`regional_table` and :func:`witnesses` also serve every
 campaign's summary.md, from the campaign's own runs.
 """
@@ -16,7 +16,7 @@ from mcfdd.analysis import build
 from mcfdd.analysis import sensitivity as sens
 from mcfdd.progress import bar
 from mcfdd.workflows import campaign as campaign_wf
-from mcfdd.workflows.sensitivity.design import EVENTS, OUTCOMES, Design, acts, applies, outcome_values, scored, strata
+from mcfdd.workflows.sensitivity.study import EVENTS, OUTCOMES, Design, acts, applies, outcome_values, scored, strata
 
 SCREEN_BATCH = 16  # gradient evaluations per compiled batch (reverse mode keeps every step of the scan)
 

@@ -1,4 +1,4 @@
-"""The sensitivity design of a campaign, and the outcomes it analyses.
+"""The sensitivity study of a campaign: its design (factors, strata, pick-freeze runs) and its outcomes.
 
 Factors are the campaign space's sampled axes (ranges: continuous; lists: categorical, a level
 drawn from a unit coordinate as the campaign draws it) and the noise path :data:`NOISE` (the run's
@@ -37,6 +37,8 @@ from mcfdd.analysis import build, scenarios
 from mcfdd.analysis import sensitivity as sens
 
 NOISE = "noise_path"  # the factor of a run's random numbers (turbulence and sensor noise), one group
+# a campaign's largest number of scenarios (the range of campaign.scenarios)
+MAX_RUNS = next(m.le for m in config.CampaignSettings.model_fields["scenarios"].metadata if hasattr(m, "le"))
 
 
 class Outcome(NamedTuple):
@@ -162,6 +164,9 @@ def design(cfg: config.CampaignConfig) -> Design:
     unit, from_b = sens.pick_freeze(a, b) if s.method == "pick_freeze" else (a, np.zeros(a.shape, dtype=bool))
     per = len(unit)
     cells = math.prod(len(cfg.space.axis(n).grid_values()) for n in strata)
+    if cells * per > MAX_RUNS:
+        raise config.ConfigError(f"sensitivity.samples: {s.samples} base samples give {cells * per} runs ({cells} "
+                                 f"strata x {per}), more than {MAX_RUNS}; use fewer")
     derived = config.replace(cfg, {"campaign.design": "sobol", "campaign.grid": list(strata),
                                    "campaign.scenarios": cells * per, "campaign.seed": seed})
     raw = np.arange(cells * per)
