@@ -2,6 +2,7 @@
 
 import concurrent.futures
 import math
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,11 +13,13 @@ from scipy import stats
 
 import mcfdd
 from mcfdd import cli, config, io
+from mcfdd.analysis import build
 from mcfdd.analysis import sensitivity as sens
 from mcfdd.workflows import sensitivity as sens_wf
 from mcfdd.workflows.sensitivity import tables
 
 A_ISH, B_ISH = 7.0, 0.1
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
 def ishigami(u, xp=np):
@@ -358,3 +361,24 @@ def test_estimators_refuse_what_they_cannot_estimate():
     with pytest.raises(ValueError, match="does not vary"):
         sens.sobol_indices(np.ones(8), np.ones(8), np.ones((2, 8)))
     assert math.isclose(sens.regional_categorical(np.array(["a"] * 5), np.arange(5) < 2)["p_value"], 1.0)
+
+
+def test_design_of_a_shipped_space_maps_its_unit_rows_to_columns_and_strata():
+    cfg = mcfdd.load_config(CONFIGS / "validation_kci10.toml", overrides={"sensitivity.samples": 8})
+    d = sens_wf.design(cfg)
+    assert d.strata == ("fault_kind",) and d.config.campaign.grid == ("fault_kind",)
+    assert d.factors[-1] == "noise_path" and d.kinds.count("categorical") == 2  # turbulence, manoeuvre family
+    assert d.blocks == len(d.factors) + 2 and d.plan.n == d.config.campaign.scenarios == 4 * 8 * d.blocks
+    ids = np.arange(d.plan.n)
+    cols = build.design_chunk(d.config, d.plan, ids)
+    cell, block, base = d.locate(ids)
+    axis = cfg.space.axis("kci_scale")
+    i = d.factors.index("kci_scale")
+    np.testing.assert_allclose(cols["kci_scale"], axis.lo + d.unit[block * 8 + base, i] * (axis.hi - axis.lo))
+    assert (np.asarray(cols["fault_kind"]) == np.array(["none", "leakage", "surface_damage", "disconnection"])[cell]).all()
+    noise = block == 2 + d.factors.index("noise_path")
+    np.testing.assert_array_equal(d.plan.keys[noise], cell[noise] * 16 + 8 + base[noise])  # B's noise path
+    np.testing.assert_array_equal(d.plan.keys[block == 0], cell[block == 0] * 16 + base[block == 0])
+    screen = sens_wf.design(config.replace(cfg, {"sensitivity.method": "screen"}))
+    assert screen.blocks == 1 and screen.plan.n == 4 * 8
+    np.testing.assert_array_equal(screen.unit[:, :-1], d.unit[:8, :-1])  # the A points
