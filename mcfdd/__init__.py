@@ -12,6 +12,7 @@ from mcfdd.config import ConfigError, load_config
 from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, campaign_executor, run_campaign
 from mcfdd.workflows.figures import FiguresResult, paper_figures
 from mcfdd.workflows.fit_lpv import LpvFitResult, fit_lpv
+from mcfdd.workflows.sensitivity import SensitivityResult, sensitivity
 from mcfdd.workflows.simulate import Histories, simulate
 from mcfdd.workflows.tune import TuneResult, tune
 from mcfdd.workflows.worst_case import WorstCaseResult, worst_case
@@ -29,9 +30,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError", "Status",
-    "TuneResult", "WorstCaseResult", "__version__", "campaign_executor", "dask_cluster", "dask_security", "fit_lpv",
-    "load_config",
-    "paper_figures", "run_campaign",
-    "simulate", "tune", "worst_case",
+    "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError",
+    "SensitivityResult", "Status", "TuneResult", "WorstCaseResult", "__version__", "campaign_executor", "dask_cluster",
+    "dask_security", "fit_lpv", "load_config", "paper_figures", "run_campaign", "sensitivity", "simulate", "tune",
+    "worst_case",
 ]

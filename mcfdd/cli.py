@@ -60,6 +60,22 @@ def cmd_campaign(args) -> int:
     return 0
 
 
+def cmd_sensitivity(args) -> int:
+    cfg = mcfdd.load_config(args.config, "campaign", config.set_overrides(args.set))
+    out = io.out_dir("sensitivity", args.config, args.out, new=not args.resume)
+    try:
+        with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
+                                     args.connect_timeout) as executor:
+            result = mcfdd.sensitivity(cfg, out=out, resume=args.resume, executor=executor,
+                                       compile_cache=args.compile_cache)
+    except KeyboardInterrupt:
+        _say(f"\ninterrupted: finished chunks are kept in {out / 'runs' / 'scenarios'}; continue with --resume")
+        return 130
+    _print(result.lines())
+    print(f"report: {out / 'report.md'}")
+    return 0
+
+
 def cmd_fit_lpv(args) -> int:
     result = mcfdd.fit_lpv(args.config)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
@@ -142,6 +158,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set fdd.loe.tau=0.12 (repeatable)")
+    _cluster_flags(p)
+    p = _command(sub, "sensitivity", cmd_sensitivity, "what drives the verdicts: Sobol' indices, gradient screen "
+                 "and regional sensitivity over a campaign space ([sensitivity] table)", "fault_free.toml",
+                 "a new results/sensitivity-<config>[-N]")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted design runs in --out")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a config key by its dotted path, e.g. --set sensitivity.samples=64 (repeatable)")
     _cluster_flags(p)
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")

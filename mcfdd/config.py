@@ -686,6 +686,27 @@ class EvaluationConfig(Section):
     stall_window_s: float = spec(0.5, lo=0.0, lo_open=True, doc="required stall detection/identification time")
 
 
+class SensitivityConfig(Section):
+    """What drives a campaign's verdicts (``mcfdd sensitivity``; its bootstrap and seed also serve the regional
+    section of every campaign's summary.md)."""
+
+    outcomes: tuple[str, ...] = spec((), doc="continuous outcomes analysed, e.g. [\"loe_ratio0_max_pre\"]; empty: each "
+                                     "of mcfdd.workflows.sensitivity.study.DEFAULT_OUTCOMES the space has runs for")
+    method: Literal["pick_freeze", "screen"] = spec(
+        "pick_freeze", doc="pick_freeze: variance-based indices (samples x (factors + 2) runs per stratum) and the "
+        "gradient screen; screen: the gradient screen (DGSM) alone (samples runs and gradients per stratum)")
+    samples: int = spec(256, lo=8, hi=65536, doc="base samples N per stratum, a power of 2")
+    bootstrap: int = spec(1000, lo=100, hi=100_000, doc="bootstrap resamples of every interval")
+    confidence: float = spec(0.95, lo=0.5, hi=0.999, doc="level of every interval")
+    seed: int | None = spec(None, lo=0, hi=SEED_MAX, doc="design, noise paths and bootstraps; default campaign.seed")
+    temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0, doc="smooth maximum over time of the gradient "
+                              "screen, in log units of the statistic (as in worst-case)")
+
+    def check(self):
+        if self.samples & (self.samples - 1):
+            raise Invalid("samples", f"{self.samples} is not a power of 2 (Sobol' points are balanced in powers of 2)")
+
+
 def _default(column):
     """Default value of a scenario column: its single-run key's default."""
     owner, key = _COLUMN_OWNERS[column]
@@ -700,6 +721,7 @@ class CampaignConfig(Section):
     plant: PlantConfig = spec(PlantConfig())
     fdd: FddConfig = spec(FddConfig())
     space: SpaceConfig = spec(SpaceConfig())
+    sensitivity: SensitivityConfig = spec(SensitivityConfig())
 
     def check(self):
         for i, name in enumerate(self.campaign.grid):
@@ -1136,7 +1158,7 @@ def json_schema(kind: str) -> dict:
 
     >>> schema = json_schema("campaign")
     >>> sorted(schema["properties"]), schema["additionalProperties"]
-    (['campaign', 'evaluation', 'fdd', 'plant', 'space'], False)
+    (['campaign', 'evaluation', 'fdd', 'plant', 'sensitivity', 'space'], False)
     """
     if kind not in KINDS:
         raise ConfigError(f"kind: {kind!r} is not allowed; expected one of {', '.join(map(repr, KINDS))}")

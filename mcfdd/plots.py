@@ -459,3 +459,45 @@ def _bin_text(label: str, edges) -> str:
 
 def _cell_frame(j, i):
     return Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False, edgecolor="tab:blue", linewidth=2.2)
+
+
+def ranked_bars(df: pd.DataFrame, series, xlabel: str, top: int = 10, log: bool = False) -> Figure:
+    """Ranked horizontal bars with interval whiskers, one panel per (``outcome``, ``stratum``) of a tidy table.
+
+    ``series`` are (column, label) pairs, drawn side by side per ``factor``; a column's interval is
+    ``<column>_lo`` to ``<column>_hi`` where the table has them. Rows are drawn in table order
+    (ranked by the first series), the ``top`` first of each panel, largest on top; ``log``: a
+    logarithmic axis from 1e-4 of the panel's largest value (non-negative values spanning decades).
+    """
+    groups = list(df.groupby(["outcome", "stratum"], sort=False))
+    ncols = min(3, len(groups))
+    nrows = -(-len(groups) // ncols)
+    rows_shown = max(min(top, len(g)) for _, g in groups)
+    fig = Figure(figsize=(4.6 * ncols, (0.32 * rows_shown + 1.3) * nrows), constrained_layout=True)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    width = 0.8 / len(series)
+    for ax, ((outcome, stratum), g) in zip(axes.flat, groups):
+        g = g.head(top).iloc[::-1]
+        y = np.arange(len(g))
+        for k, (column, label) in enumerate(series):
+            v = g[column].to_numpy(dtype=float)
+            pos = y + ((len(series) - 1) / 2 - k) * width
+            ax.barh(pos, v, height=width, color=f"C{k}", alpha=1.0 if k == 0 else 0.55, label=label)
+            if f"{column}_lo" in g:
+                err = np.clip([v - g[f"{column}_lo"].to_numpy(dtype=float), g[f"{column}_hi"].to_numpy(dtype=float) - v],
+                              0.0, None)
+                ax.errorbar(v, pos, xerr=np.nan_to_num(err), fmt="none", ecolor="k", elinewidth=0.8, capsize=2)
+        if log:
+            ax.set_xscale("log")
+            ax.set_xlim(1e-4 * np.nanmax(g[series[0][0]]), None)
+        ax.set_yticks(y, g["factor"], fontsize=8)
+        ax.set_title(f"{outcome}\n{stratum}" if stratum not in ("", "all") else outcome, fontsize=9)
+        if not log:
+            ax.axvline(0.0, color="k", lw=0.6)
+        ax.grid(axis="x", alpha=0.3)
+    for ax in axes.flat[len(groups):]:
+        ax.set_visible(False)
+    if len(series) > 1:
+        axes.flat[0].legend(loc="lower right", fontsize=8)
+    fig.supxlabel(xlabel, fontsize=9)
+    return fig

@@ -468,6 +468,31 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str = "the campaign's runs",
+                     top: int = 3) -> str:
+    """Section of summary.md: the top factors of the false alarms and misses (regional sensitivity of ``runs``,
+    :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses."""
+    lines = ["", "## What drives the false alarms and misses", "",
+             f"Regional sensitivity of {runs} (no extra simulation): each parameter's values in the runs with the event "
+             "against the others, ranked by the distance D (Kolmogorov-Smirnov for ranges, total variation for lists), "
+             "with its p-value (not adjusted for the parameters tested); Cliff's delta > 0 where the events sit at "
+             "larger values, with its bootstrap interval; event rates per level of a list.", ""]
+    for outcome, g in regional.groupby("outcome", sort=False):
+        whole = g.loc[g["runs"].idxmax()]  # a fault-size parameter counts within its fault kind's runs only
+        few = "; few events: an indication" if whole["events"] < 10 else ""
+        lines.append(f"- {outcome.replace('_', ' ')} ({whole['events']} of {whole['runs']} runs{few}): " + "; ".join(
+            f"{r.factor} D {r.statistic:.2f} (p {r.p_value:.2g}), " + (
+                f"delta {r.effect:+.2f} [{r.effect_lo:+.2f}, {r.effect_hi:+.2f}]" if r.kind == "continuous" else r.rates)
+            for r in g.head(top).itertuples()) + ".")
+    if regional.empty:
+        lines.append("- No false alarm and no miss to explain (or every run of its kind has one).")
+    for outcome, g in witnesses.groupby("outcome", sort=False):
+        lines.append(f"- Worst {outcome.replace('_', ' ')} witnesses: " + ", ".join(
+            f"scenario {r.scenario_id} ({r.measure} {r.value:.3g})" for r in g.itertuples()) + ".")
+    lines.append("- Replay of a witness: not available in this version (its command will be given here).")
+    return "\n".join(lines) + "\n"
+
+
 def stall_scoring_markdown(df: pd.DataFrame) -> str:
     """Section of summary.md: jams taken for stalls (eta = 1 on a jammed rod) and LOE false alarms."""
     ok = df["status"] == 0

@@ -157,6 +157,8 @@ class DesignPlan:
         whole: the Latin hypercube's unit sample (lhs designs only, else None).
         ranges: (lo, hi) of each uncertain scale over the whole design (detectability columns).
         kinds: manoeuvre family codes present in the campaign (static structure of its program).
+        keys: (n,) index of each scenario's random key (``fold_in(seed, index)``), or None when it
+            is the scenario id (a sensitivity design gives two runs the same noise path).
     """
 
     n: int
@@ -164,21 +166,29 @@ class DesignPlan:
     whole: np.ndarray | None
     ranges: dict
     kinds: tuple
+    keys: np.ndarray | None = None
 
 
-def design_plan(cfg: config.CampaignConfig) -> DesignPlan:
-    """The :class:`DesignPlan` of a campaign (builds the whole design once, then keeps only the plan)."""
+def design_plan(cfg: config.CampaignConfig, whole: np.ndarray | None = None, keys=None) -> DesignPlan:
+    """The :class:`DesignPlan` of a campaign (builds the whole design once, then keeps only the plan).
+
+    Args:
+        whole: an explicit unit sample of the sampled axes, (draws per grid cell, dim), instead of
+            the config's design (the pick-freeze rows of :mod:`mcfdd.workflows.sensitivity`).
+        keys: (raw rows,) random-key index of each raw design row; None: the scenario id.
+    """
     c = cfg.campaign
     axes = list(cfg.space.axes)
     samples = _samples(cfg)
     cells, per_cell = scenarios.design_shape(axes, samples, c.design, c.grid)
-    whole = scenarios.whole_sample(axes, samples, c.design, c.seed, c.grid)
+    if whole is None:
+        whole = scenarios.whole_sample(axes, samples, c.design, c.seed, c.grid)
     cols, keep = scenarios.design_rows(axes, samples, c.design, c.seed, np.arange(cells * per_cell), c.grid,
                                        cfg.plant.aircraft.max_mach, whole)
     cols = _fault_size(cfg, {k: np.asarray(v)[keep] for k, v in cols.items()})
     kinds = batch.kinds_in([manoeuvres.KIND_CODE[k] for k in np.unique(cols["manoeuvre_kind"])])
     return DesignPlan(int(keep.sum()), None if keep.all() else np.flatnonzero(keep), whole,
-                      metrics.uncertainty_ranges(cols), kinds)
+                      metrics.uncertainty_ranges(cols), kinds, None if keys is None else np.asarray(keys)[keep])
 
 
 def design_chunk(cfg: config.CampaignConfig, plan: DesignPlan, ids) -> dict:

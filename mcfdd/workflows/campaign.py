@@ -106,7 +106,8 @@ def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
     onset = scenarios.fault_onsets(cols, size)
     truth = campaign.Truth(onset.astype(setup.dtype), accept)
-    return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, simulate.run_keys(seed, padded)
+    keys = simulate.run_keys(seed, padded if setup.plan.keys is None else setup.plan.keys[padded])
+    return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, keys
 
 
 def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
@@ -115,16 +116,18 @@ def chunk_inputs(setup: CampaignSetup, seed: int, ids, size: int):
     return scen, truth, keys
 
 
-_SETUPS: dict = {}
+_SETUPS: dict = {}  # config JSON -> (set-up, whether its plan is the config's own design)
 
 
 def _setup_of(cfg: config.CampaignConfig, plan: build.DesignPlan | None = None) -> CampaignSetup:
-    """The set-up of ``cfg``, built once per process for the chunks of one campaign."""
+    """The set-up of ``cfg``, built once per process for the chunks of one campaign; with ``plan``, that plan."""
     key = config.to_json(cfg)
-    if key not in _SETUPS:
+    setup, own = _SETUPS.get(key, (None, False))
+    if setup is None or (plan is None and not own):
         _SETUPS.clear()
-        _SETUPS[key] = campaign_setup(cfg, plan)
-    return _SETUPS[key]
+        setup = campaign_setup(cfg, plan)
+        _SETUPS[key] = (setup, plan is None)
+    return setup if plan is None or setup.plan is plan else setup._replace(plan=plan)
 
 
 def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: build.DesignPlan | None = None) -> dict:
@@ -245,6 +248,19 @@ class CampaignResult:
         self.confusion = report.confusion(scenarios, list(models))
         self.gaps = report.gaps(scenarios, deg_per_m)
         self.detectability = report.detectability(scenarios)
+        self._drivers = None
+
+    def drivers(self):
+        """What drives the false alarms and misses: (regional sensitivity, worst witnesses), tidy tables of the
+        campaign's own runs (:func:`mcfdd.workflows.sensitivity.tables.regional_table`), computed once."""
+        if self._drivers is None:
+            from mcfdd.workflows.sensitivity import tables
+
+            s = self.config.sensitivity
+            self._drivers = (tables.regional_table(self.config, self.scenarios, s.bootstrap, s.confidence,
+                                                   self.config.campaign.seed if s.seed is None else s.seed),
+                             tables.witnesses(self.scenarios))
+        return self._drivers
 
     def overall(self) -> dict:
         """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
@@ -322,6 +338,7 @@ class CampaignResult:
                                                                          self.gaps, self.meta)
                                      + report.detectability_markdown(self.detectability, self.scenarios)
                                      + report.stall_scoring_markdown(self.scenarios)
+                                     + report.drivers_markdown(*self.drivers())
                                      + report.figures_markdown(drawn, left_out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
@@ -433,7 +450,7 @@ def _read_parts(parts_dir: Path, setup: CampaignSetup):
 
 
 def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, executor=None, on_chunk=None,
-                 title: str = "Campaign", compile_cache=None) -> CampaignResult:
+                 title: str = "Campaign", compile_cache=None, plan: build.DesignPlan | None = None) -> CampaignResult:
     """Simulate and score every scenario of a campaign.
 
     Args:
@@ -451,6 +468,9 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
         compile_cache: folder of JAX's persistent compilation cache, here and on Dask workers
             (:func:`mcfdd.workflows.common.compile_cache`): None for the user's cache folder,
             'off' for none. It does not change results.
+        plan: the scenarios to run instead of the config's design (:func:`mcfdd.analysis.build.design_plan`
+            with an explicit sample, e.g. the pick-freeze design of :func:`mcfdd.sensitivity`); None: the
+            config's own.
 
     Returns:
         A :class:`CampaignResult`; ``.scenarios`` is bit for bit the table ``mcfdd campaign``
@@ -465,30 +485,30 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     """
     cfg = as_config(cfg, "campaign")
     if out is None:
-        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title, compile_cache)
+        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title, compile_cache, plan)
     out = Path(out)
     _check_out(out, resume)
     with precision(cfg.campaign.precision):
-        _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
+        _setup_of(cfg, plan)  # a configuration error (a bad bank) stops the run before any folder is made
     with _writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
         raise OutputFolderError(f"out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for "
                                 f"it to end or choose another folder")
     try:
-        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache)
+        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache, plan)
     finally:
         lock.release()
 
 
-def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
+def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache, plan) -> CampaignResult:
     """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
     import pandas as pd
 
     c = cfg.campaign
     common.compile_cache(compile_cache)
     with precision(c.precision):
-        setup = _setup_of(cfg)
+        setup = _setup_of(cfg, plan)
         size = chunk_size(c.chunk_size, setup.n)
     n, names = setup.n, setup.names
     if out is not None:
