@@ -772,9 +772,11 @@ def test_detection_contrast_needs_a_better_fault_model(bank):
 
 
 def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
-    """tau_schedule = 0 and excitation_load_fraction = 0 in a config build no schedule and no weighted
-    evaluator (None leaves, no state); the step then gives the outputs of the same options built with the
-    traced value 0, and with the options on the step stays differentiable in their values."""
+    """tau_schedule = 0, excitation_load_fraction = 0, excitation_noise_factor = 0 and max_load_fraction = 1 in a
+    config build no schedule, no weighted evaluator, no noise estimate and no load gate (None leaves, no state);
+    the step then gives the outputs of the same options built with the traced values 0 (1 for the gate, which
+    this run's load estimate stays below), and with the options on the step stays differentiable in their
+    values."""
     n = 300
     u_c = smooth_command(n, 3.0)
     u, _ = lpv_plant(eq4_gains(bank, VCAS_M_S, ALT_M), 4, u_c, u_c[0])
@@ -782,8 +784,10 @@ def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
     off = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.5)), bank,
                            r_arm_m=R_ARM_M)
     assert off.loe.tau_schedule is None and off.loe.excitation_load_fraction is None
-    assert system.init(off, u[0]).band_w_xi is None
-    at_zero = off._replace(loe=off.loe._replace(tau_schedule=0.0, excitation_load_fraction=0.0))
+    assert off.loe.excitation_noise_factor is None and off.loe.max_load_fraction is None
+    assert system.init(off, u[0]).band_w_xi is None and system.init(off, u[0]).noise is None
+    at_zero = off._replace(loe=off.loe._replace(tau_schedule=0.0, excitation_load_fraction=0.0,
+                                                excitation_noise_factor=0.0, max_load_fraction=1.0))
 
     def run(params):
         def body(state, inp):
@@ -792,14 +796,17 @@ def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
         return jax.lax.scan(body, system.init(params, u[0]), (u_c, u, np.arange(n) * DT_S))[1]
 
     a, b = (jax.tree.map(np.asarray, jax.jit(run)(p)) for p in (off, at_zero))
+    assert a.noise_rms is None and b.noise_rms.max() > 0.0 and np.abs(b.load_fraction).max() < 1.0
     for name in a._fields:
-        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=0, err_msg=name)
+        if name != "noise_rms":
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=0, err_msg=name)
     assert a.excited.any() and not a.excited.all()
 
     def weighted(values):
-        on = off._replace(loe=off.loe._replace(tau_schedule=values[0], excitation_load_fraction=values[1]))
+        on = off._replace(loe=off.loe._replace(tau_schedule=values[0], excitation_load_fraction=values[1],
+                                               excitation_noise_factor=values[2]))
         out = run(on)
-        return jnp.sum(out.theta_w) + jnp.sum(jnp.where(out.iota, 0.0, 1.0))
+        return jnp.sum(out.theta_w) + jnp.sum(jnp.where(out.iota, 0.0, 1.0)) + jnp.sum(out.noise_rms)
 
-    grad = jax.jit(jax.grad(weighted))(jnp.array([0.5, 0.2]))
+    grad = jax.jit(jax.grad(weighted))(jnp.array([0.5, 0.2, 2.0]))
     assert np.isfinite(grad).all() and grad[1] != 0.0
