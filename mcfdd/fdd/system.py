@@ -237,9 +237,10 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     if loe.excitation_noise_factor is None:
         noise, noise_rms = None, None
     else:
-        noise, noise_rms = decision.noise_step(state.noise, u, loe.noise_gamma, dt_s)
+        noise, noise_rms = once(decision.noise_step(state.noise, u, loe.noise_gamma, dt_s), params.one)
         ev = loe.evaluator
-        floor = jnp.maximum(floor, loe.excitation_noise_factor * (ev.alpha + ev.beta / ev.gamma) * noise_rms)
+        floor = once(jnp.maximum(floor, loe.excitation_noise_factor * (ev.alpha + ev.beta / ev.gamma) * noise_rms),
+                     params.one)
     excited = theta_w >= floor
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
