@@ -395,9 +395,10 @@ class LoeDetectionConfig(Section):
                                     "disconnected rod at large deflections); 1 builds no load gate")
     load_gate: Literal["fault_free", "best_fit"] = spec("fault_free", doc="the load the gate compares with "
                                                         "max_load_fraction: the fault-free model's estimate (the "
-                                                        "healthy surface's load), or that times nu2 / nu1 of the bank "
-                                                        "model with the smallest evaluated residual so far (the load "
-                                                        "the rod's motion shows: none on a disconnected rod)")
+                                                        "healthy surface's load), or that times the surface "
+                                                        "effectiveness nu2 of the bank model with the smallest "
+                                                        "evaluated residual so far (the load the rod's motion shows: "
+                                                        "none on a disconnected rod)")
     linear_range_deg: float = spec(3.5, lo=0.0, lo_open=True, doc="residuals are not evaluated while |u_c - u| "
                                    "exceeds this (servo-valve current saturation at i_max / Kp = 4 deg)")
     stall_hold_s: float = spec(3.0, lo=0.0, hi=60.0, doc="no LOE decision while a stall load is identified "

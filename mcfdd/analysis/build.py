@@ -61,12 +61,6 @@ def evaluator_params(c: config.EvaluatorConfig) -> evaluator.NarendraParams:
     return evaluator.NarendraParams(c.alpha, c.beta, c.gamma_1_s)
 
 
-def _load_scales(bank: lpv.GainBank) -> np.ndarray:
-    """Hinge load each model of the bank carries relative to the fault-free model's: nu2 / nu1, (N,)."""
-    nu = np.asarray(bank.nu)
-    return nu[:, 1] / nu[:, 0]
-
-
 def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) -> system.FddParams:
     """FDD parameters in rod units for an actuator with lever arm ``r_arm_m``."""
     deg = math.radians(1.0) * r_arm_m
@@ -81,7 +75,7 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
                              excitation_noise_factor=system.switch(loe.excitation_noise_factor),
                              noise_gamma=loe.noise_gamma_1_s, confirm_s=loe.confirm_s,
                              max_load_fraction=None if loe.max_load_fraction >= 1.0 else loe.max_load_fraction,
-                             load_scales=_load_scales(bank) if loe.load_gate == "best_fit" else None,
+                             load_scales=np.asarray(bank.nu)[:, 1] if loe.load_gate == "best_fit" else None,
                              linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
         stall=system.StallParams(
             pole=stl.pole_1_s, evaluator=evaluator_params(stl.evaluator), tau=stl.tau_deg * deg,

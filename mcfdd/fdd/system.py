@@ -84,8 +84,8 @@ class LoeParams(NamedTuple):
     confirm_s: float  # a decoded model must persist this long to become a decision
     # evaluation is suspended above this estimated hinge-load fraction; None: no load gate (not built)
     max_load_fraction: float | None
-    # (N,) load of each model relative to the fault-free one, nu2 / nu1: the gate applies to the load of the
-    # model that explains the rod best; None: to the fault-free (healthy surface's) load
+    # (N,) surface effectiveness nu2 of each model: the gate applies to the load the surface of the model that
+    # explains the rod best carries; None: to the fault-free estimate (the healthy surface's load)
     load_scales: jnp.ndarray | None
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
     stall_hold_s: float  # no LOE decision while a stall load is identified and this long after
