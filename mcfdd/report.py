@@ -583,17 +583,18 @@ def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[s
             f"| {r['p_value']:.3g} |" for _, r in outcomes[outcomes["runs"] > 0].iterrows()]
     tim = [f"| {r['fault_kind']} | {r['runs']} | {_fmt(r['median_a'])} | {_fmt(r['median_b'])} | "
            f"{_fmt(r['median_difference'])} | {_fmt(r['p_value'])} |" for _, r in times.iterrows()]
+    head = (f"| fault (detection latency) | detected by both | {a} median (s) | {b} median (s) | median of {b} - {a} "
+            "(s) | Wilcoxon p |")
     return ([f"| outcome (runs) | {a} | {b} | discordant: {a} only / {b} only | McNemar p |", "|---|---|---|---|---|",
-             *rows, "", f"| fault (detection latency) | detected by both | {a} median (s) | {b} median (s) | median of "
-             f"{b} - {a} (s) | Wilcoxon p |", "|---|---|---|---|---|---|", *tim])
+             *rows, "", head, "|---|---|---|---|---|---|", *tim])
 
 
 def compare_markdown(outcomes: pd.DataFrame, times: pd.DataFrame, discordant: pd.DataFrame, labels, meta) -> str:
     """``compare.md``: the paired comparison of two campaigns of one space, with the discordant runs' ids."""
     ids = [f"- {name}: {labels[0]} only {list(g.loc[g['event_in'] == 'a', 'scenario_id'])}, {labels[1]} only "
            f"{list(g.loc[g['event_in'] == 'b', 'scenario_id'])}" for name, g in discordant.groupby("outcome", sort=False)]
-    return "\n".join([f"# Paired comparison: {labels[0]} against {labels[1]}", "", f"The same runs (seed "
-                      f"{meta.get('seed') or NA}); mcfdd {meta.get('version')}. Counts with Clopper-Pearson 95 % "
-                      "intervals; McNemar's exact test on the discordant runs; detection latency on the runs both "
-                      "detect.", "", *compare_lines(outcomes, times, labels), "", "## Discordant runs", "",
-                      *(ids or ["none"]), ""])
+    intro = (f"The same runs (seed {meta.get('seed') or NA}); mcfdd {meta.get('version')}. Counts with "
+             "Clopper-Pearson 95 % intervals; McNemar's exact test on the discordant runs; detection latency on the "
+             "runs both detect.")
+    return "\n".join([f"# Paired comparison: {labels[0]} against {labels[1]}", "", intro, "",
+                      *compare_lines(outcomes, times, labels), "", "## Discordant runs", "", *(ids or ["none"]), ""])

@@ -4,17 +4,23 @@
   the gains k^(i) of the LPV bank, Narendra evaluators, the normalised decision (15) and the
   signature decoding into a detected model id. Residuals are evaluated only while the tracking
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
-  which no first-order model follows) and, optionally (``max_load_fraction`` below 1), while the
-  bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
-  no-load model is the one with nu = [1, 0]), stays below it: the affine gains of eq. (4) cannot
-  follow the square-root fall of the gain towards a stall load. That estimate is the healthy
-  surface's load, so the load gate also hides a disconnected rod (which carries none) exactly
-  where its disconnection shows most, at large deflections, and on a rod held at a stop it
-  chatters with the direction estimate (+0.7 against, -1.0 aided), restarting the filters at
-  every switch; the stall detector's hold (below) covers the loads near a stall the gate was
-  for. Measured on the validation spaces, no load gate misses fewer disconnections with no more
-  false alarms (README, trade-off of the FDD design). While evaluation is suspended, and at the first sample
-  after (the last gated sample's step propagates the first-order prediction of a saturated
+  which no first-order model follows) and the estimated hinge-load fraction stays below
+  ``max_load_fraction`` (1: no load gate): the affine gains of eq. (4) cannot follow the
+  square-root fall of the gain towards a stall load, and the uncertainty of the hinge load and
+  supply pressure moves the gain more the nearer the stall. The bank's estimate,
+  ``1 - (k_fault-free / k_no-load)^2`` (the no-load model is the one with nu = [1, 0]), is the
+  healthy surface's load: gated on it (``load_gate = "fault_free"``), the gate also hides a
+  disconnected rod, which carries no load, exactly where its disconnection shows most (large
+  deflections), and on a rod held at its stop the estimate chatters with the direction estimate
+  between about +0.7 and -1.1, restarting the filters at every switch. Gated on the load the rod's
+  motion shows (``load_gate = "best_fit"``), the estimate is multiplied by the surface
+  effectiveness nu2 of the bank model with the smallest evaluated residual so far (the evaluator
+  memories before this sample, which share ||u||): a disconnected rod is best explained by the
+  no-load model and is never gated, a healthy rod near a stall load by the fault-free or a
+  pressure-loss model (nu2 = 1) and is gated as before. nu2 alone, not nu2 / nu1 (a pressure-loss
+  model's own load fraction): a slow servo fits a pressure-loss model, and gating it earlier
+  raised false alarms under Kci +-10 % (README, FDD design). While evaluation is suspended, and at
+  the first sample after (the last gated sample's step propagates the first-order prediction of a saturated
   sample, which the rod did not follow), the bank's filters and the excitation low-pass restart
   from equilibrium with the measured position (residual 0, ||u|| input 0), so no filter carries a
   transient of the gated interval out of it: after the gate reopens, every residual and ||u||
