@@ -95,7 +95,7 @@ HLO_BATCH, HLO_STEPS = 128, 600  # the small batch whose compiled program is cou
 
 
 def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int,
-                    precision: str = "float32") -> config.CampaignConfig:
+                    precision: str = "float32", overrides: dict | None = None) -> config.CampaignConfig:
     if n_scenarios % GRID_CELLS:
         raise SystemExit(f"--scenarios: must be a multiple of {GRID_CELLS} (fault kinds on a grid)")
     # revisions before campaign.scenarios became the total (a --baseline checkout) count per grid cell
@@ -108,14 +108,15 @@ def campaign_config(n_scenarios: int, duration_s: float, chunk_size: int,
                      "grid": ["fault_kind"], "seed": 1, "chunk_size": chunk_size, "duration_s": duration_s,
                      "precision": precision},
         "space": space,
-    }, "campaign")
+    }, "campaign", overrides or {})
 
 
 class Problem:
     """The campaign of :func:`campaign_config` set up as ``run_campaign`` sets it up, and its chunks."""
 
-    def __init__(self, n_scenarios: int, n_steps: int, chunk_size: int, precision: str = "float32"):
-        cfg = campaign_config(n_scenarios, n_steps * DT_S, chunk_size, precision)
+    def __init__(self, n_scenarios: int, n_steps: int, chunk_size: int, precision: str = "float32",
+                 overrides: dict | None = None):
+        cfg = campaign_config(n_scenarios, n_steps * DT_S, chunk_size, precision, overrides)
         self.c = cfg.campaign
         start = time.perf_counter()
         with CompileCounter() as compiles:
@@ -833,6 +834,9 @@ def main(argv=None):
                         help="only show what optimization_barrier and mcfdd.compute.once do to a toy step's fusions")
     parser.add_argument("--hlo-lines", type=int, metavar="N",
                         help="only list the N source lines with the most element-ops in the compiled step loop")
+    parser.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
+                        help="with --hlo-lines: a config override of the counted program, e.g. --set "
+                             "fdd.loe.excitation_noise_factor=2 (repeatable)")
     parser.add_argument("--wait-quiet", type=float, default=0.0, metavar="S",
                         help="before each measurement wait up to S seconds for idle cores (shared machines)")
     parser.add_argument("--family-chunks", action="store_true",
@@ -852,7 +856,9 @@ def main(argv=None):
         family_chunks(args)
         return
     if args.hlo_lines is not None:
-        rows = hlo_lines(Problem(args.scenarios, args.steps, args.chunk_size).device_program(), HLO_BATCH)
+        overrides = config.campaign_overrides(args.set, {}, None)
+        rows = hlo_lines(Problem(args.scenarios, args.steps, args.chunk_size, overrides=overrides).device_program(),
+                         HLO_BATCH)
         print(f"step loop of device_batch ({HLO_BATCH} scenarios x {HLO_STEPS} steps): "
               f"{sum(r['element_ops'] for r in rows):.0f} element-ops per scenario-step")
         print("| source line | element-ops per scenario-step | fusions |")

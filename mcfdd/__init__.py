@@ -10,6 +10,7 @@ from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS befo
 from mcfdd.analysis.campaign import Status
 from mcfdd.config import ConfigError, load_config
 from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, campaign_executor, run_campaign
+from mcfdd.workflows.compare import CampaignMismatchError, CompareResult, compare
 from mcfdd.workflows.figures import FiguresResult, paper_figures
 from mcfdd.workflows.fit_lpv import LpvFitResult, fit_lpv
 from mcfdd.workflows.sensitivity import SensitivityResult, sensitivity
@@ -30,8 +31,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
-    "CampaignResult", "ConfigError", "FiguresResult", "Histories", "LpvFitResult", "OutputFolderError",
-    "SensitivityResult", "Status", "TuneResult", "WorstCaseResult", "__version__", "campaign_executor", "dask_cluster",
-    "dask_security", "fit_lpv", "load_config", "paper_figures", "run_campaign", "sensitivity", "simulate", "tune",
-    "worst_case",
+    "CampaignMismatchError", "CampaignResult", "CompareResult", "ConfigError", "FiguresResult", "Histories",
+    "LpvFitResult", "OutputFolderError", "SensitivityResult", "Status", "TuneResult", "WorstCaseResult", "__version__",
+    "campaign_executor", "compare", "dask_cluster", "dask_security", "fit_lpv", "load_config", "paper_figures",
+    "run_campaign", "sensitivity", "simulate", "tune", "worst_case",
 ]

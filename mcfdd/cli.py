@@ -76,6 +76,15 @@ def cmd_sensitivity(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    result = mcfdd.compare(args.campaign_a, args.campaign_b)
+    out = Path(args.out) if args.out else Path("results") / f"compare-{'-vs-'.join(result.labels)}"
+    result.save(out)
+    _print(result.lines())
+    print(f"report: {out / 'compare.md'}")
+    return 0
+
+
 def cmd_fit_lpv(args) -> int:
     result = mcfdd.fit_lpv(args.config)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
@@ -166,6 +175,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set sensitivity.samples=64 (repeatable)")
     _cluster_flags(p)
+    p = _command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
+                 "McNemar's exact test per outcome, detection-time differences", None,
+                 "results/compare-<a>-vs-<b>")
+    p.add_argument("campaign_a", metavar="DIR_A", help="folder of the first campaign (mcfdd campaign --out)")
+    p.add_argument("campaign_b", metavar="DIR_B", help="folder of the second campaign, same space and seed")
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
     p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,

@@ -383,9 +383,22 @@ class LoeDetectionConfig(Section):
                                            "applies to ||u|| with each sample weighted by min(1, estimated hinge-load "
                                            "fraction / this), so decisions are made only where the fault-free and "
                                            "surface-loss models differ; 0 weighs every sample 1")
+    excitation_noise_factor: float = spec(0.0, lo=0.0, hi=100.0, doc="noise-relative floor: the excitation floor "
+                                          "is at least this many times the run's position-sensor noise RMS, estimated "
+                                          "online from the measured position (in the units of ||u||, about 0.8 x the "
+                                          "RMS for a rod at rest); 0 keeps the floor absolute")
+    noise_gamma_1_s: float = spec(0.1, lo=0.0, lo_open=True, hi=100.0, doc="forgetting rate of the online "
+                                  "sensor-noise estimate (excitation_noise_factor > 0)")
     confirm_s: float = spec(2.0, lo=0.0, hi=60.0, doc="identification: a decoded model must persist this long")
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
-                                    "hinge-load fraction (1 disables)")
+                                    "hinge-load fraction (the healthy surface's, so the gate also hides a "
+                                    "disconnected rod at large deflections); 1 builds no load gate")
+    load_gate: Literal["fault_free", "best_fit"] = spec("fault_free", doc="the load the gate compares with "
+                                                        "max_load_fraction: the fault-free model's estimate (the "
+                                                        "healthy surface's load), or that times the surface "
+                                                        "effectiveness nu2 of the bank model with the smallest "
+                                                        "evaluated residual so far (the load the rod's motion shows: "
+                                                        "none on a disconnected rod)")
     linear_range_deg: float = spec(3.5, lo=0.0, lo_open=True, doc="residuals are not evaluated while |u_c - u| "
                                    "exceeds this (servo-valve current saturation at i_max / Kp = 4 deg)")
     stall_hold_s: float = spec(3.0, lo=0.0, hi=60.0, doc="no LOE decision while a stall load is identified "

@@ -56,8 +56,8 @@ def envelope_bin(df: pd.DataFrame) -> pd.Series:
 
 def _rates(group: pd.DataFrame) -> dict:
     ok = group["status"] == 0
-    faulty = ok & group["fault_kind"].isin(("leakage", "surface_damage", "disconnection")) & (group["true_model"] > 0)
-    fa_any = group["false_alarm"] | group["eta_false_signal"]
+    faulty = pd.Series(metrics.faulty_runs(group), index=group.index)
+    fa_any = pd.Series(metrics.any_false_alarm(group), index=group.index)
     far = metrics.rate(int((fa_any & ok).sum()), int(ok.sum()))
     far_loe = metrics.rate(int((group["false_alarm"] & ok).sum()), int(ok.sum()))
     mdr = metrics.rate(int((faulty & ~group["detected"]).sum()), int(faulty.sum()))
@@ -148,7 +148,7 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     """
     ok = df["status"] == 0
     ids = df["scenario_id"].to_numpy()
-    faulty = ok & df["fault_kind"].isin(("leakage", "surface_damage", "disconnection")) & (df["true_model"] > 0)
+    faulty = pd.Series(metrics.faulty_runs(df), index=df.index)
     rows = []
     for name, free, detect, scale in (
         ("loe_bank", df["loe_ratio0_max_pre"].where(ok), df["loe_others_min_peak"].where(faulty), 1.0),
@@ -595,3 +595,31 @@ def figures_lines(sweep: pd.DataFrame, grid: dict, stall_events: pd.DataFrame, e
         lines.append(f"stall event {e['onset_s']:.2f}-{e['end_s']:.2f} s: eta latency " + ", ".join(parts))
     lines += [f"eta ({method}) outside stall events: {seconds:.2f} s" for method, seconds in eta_outside_s.items()]
     return lines
+
+
+
+def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[str]:
+    """A paired comparison as two Markdown tables (printed by ``mcfdd compare``): per outcome the runs counted in
+    both, each campaign's events, the discordant runs and McNemar's p; per fault kind the detection latency of the
+    runs detected by both and the median of its difference b - a with the Wilcoxon signed-rank p."""
+    a, b = labels
+    rows = [f"| {r['outcome']} ({r['counted_on']}) | {_interval(r['events_a'], r['runs'], r['rate_a_lo'], r['rate_a_hi'])}"
+            f" | {_interval(r['events_b'], r['runs'], r['rate_b_lo'], r['rate_b_hi'])} | {r['only_a']} / {r['only_b']} "
+            f"| {r['p_value']:.3g} |" for _, r in outcomes[outcomes["runs"] > 0].iterrows()]
+    tim = [f"| {r['fault_kind']} | {r['runs']} | {_fmt(r['median_a'])} | {_fmt(r['median_b'])} | "
+           f"{_fmt(r['median_difference'])} | {_fmt(r['p_value'])} |" for _, r in times.iterrows()]
+    head = (f"| fault (detection latency) | detected by both | {a} median (s) | {b} median (s) | median of {b} - {a} "
+            "(s) | Wilcoxon p |")
+    return ([f"| outcome (runs) | {a} | {b} | discordant: {a} only / {b} only | McNemar p |", "|---|---|---|---|---|",
+             *rows, "", head, "|---|---|---|---|---|---|", *tim])
+
+
+def compare_markdown(outcomes: pd.DataFrame, times: pd.DataFrame, discordant: pd.DataFrame, labels, meta) -> str:
+    """``compare.md``: the paired comparison of two campaigns of one space, with the discordant runs' ids."""
+    ids = [f"- {name}: {labels[0]} only {list(g.loc[g['event_in'] == 'a', 'scenario_id'])}, {labels[1]} only "
+           f"{list(g.loc[g['event_in'] == 'b', 'scenario_id'])}" for name, g in discordant.groupby("outcome", sort=False)]
+    intro = (f"The same runs (seed {meta.get('seed') or NA}); mcfdd {meta.get('version')}. Counts with "
+             "Clopper-Pearson 95 % intervals; McNemar's exact test on the discordant runs; detection latency on the "
+             "runs both detect.")
+    return "\n".join([f"# Paired comparison: {labels[0]} against {labels[1]}", "", intro, "",
+                      *compare_lines(outcomes, times, labels), "", "## Discordant runs", "", *(ids or ["none"]), ""])

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 import mcfdd
-from mcfdd import config
+from mcfdd import config, io
 from mcfdd.analysis import build, metrics
+from mcfdd.fdd import lpv
 
 CLOSED_LOOP = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip")
 
@@ -194,3 +195,45 @@ def test_servo_gain_mismatch_shows_as_its_own_ratio_after_saturated_slews():
         ratio = run["theta_0"].to_numpy()[tail] / run["theta_u"].to_numpy()[tail]
         assert tail.any() and 0.045 < ratio.max() < 0.089, (name, ratio.max())
         assert not run["fault_detected"].to_numpy().any(), name
+
+
+def test_load_gate_on_the_best_fitting_model_does_not_hide_a_disconnected_rod_at_its_stop():
+    """A sideslip at 330 kt after a disconnection drives the rod to its 25 deg stop (the surface no longer rolls
+    the aircraft); the same manoeuvre on the healthy actuator holds a deflection at high hinge load. The filters
+    restart exactly where a numpy model of the gate says (tracking error beyond the linear range, or the gated
+    load above 0.5, at this sample or the one before). The fault-free model's load estimate, the healthy
+    surface's load, chatters between about +0.7 and -1.1 on the rod at its stop and its gate hides the
+    disconnection (not detected); gated on the load of the best-fitting model (the no-load model's: none) the
+    disconnected rod is never gated by load and is detected (4 s after the onset), while the healthy loaded rod
+    is still gated and raises no alarm."""
+    bank = lpv.from_dict(io.load_bank_dict())[0]
+    nu2 = np.asarray(bank.nu)[:, 1]
+    sideslip = {"kind": "sideslip", "amplitude": 1.0, "t_start_s": 4.0, "duration_s": 5.0, "hold_s": 2.0,
+                "ramp_s": 1.0, "sideslip_deg": 10.0}
+    runs = [{"name": kind, "vcas_kt": 330.0, "altitude_m": 1000.0, "manoeuvre": sideslip,
+             "fault": {"kind": kind, "size": 0.0, "onset_s": 2.0}} for kind in ("disconnection", "none")]
+    for gate in ("fault_free", "best_fit"):
+        cfg, df = simulate(runs, 16.0, {"loe": {"load_gate": gate}})
+        loe = cfg.fdd.loe
+        for name, run in df.groupby("run"):
+            u, u_c = run["u_deg"].to_numpy(), run["u_c_deg"].to_numpy()
+            theta = run[[f"theta_{i}" for i in range(nu2.size)]].to_numpy()
+            load = run["load_fraction"].to_numpy()
+            gated_load = load * (nu2[np.argmin(theta, axis=1)] if gate == "best_fit" else 1.0)
+            linear = np.abs(u_c - u) > loe.linear_range_deg
+            by_load = np.abs(gated_load) > loe.max_load_fraction
+            gated = linear | by_load
+            restart = gated[1:] | gated[:-1]
+            np.testing.assert_array_equal(run["r_0"].to_numpy()[1:] == 0.0, restart, err_msg=f"{gate} {name}")
+            t = run["t_s"].to_numpy()
+            detected = run["fault_detected"].to_numpy()
+            at_stop = np.abs(u) > 24.5
+            if name == "disconnection":
+                assert at_stop.sum() > 50, name
+                if gate == "fault_free":
+                    assert load[at_stop].max() > 0.6 and load[at_stop].min() < -0.9
+                    assert (by_load & ~linear).sum() > 100 and not detected.any()
+                else:
+                    assert not by_load.any() and detected[t > 2.0].any()
+            else:
+                assert (by_load & ~linear).sum() > 50 and not detected.any(), (gate, name)

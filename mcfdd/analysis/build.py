@@ -72,8 +72,10 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
                              detection_confirm_s=loe.detection_confirm_s, detection_contrast=loe.detection_contrast,
                              excitation_floor=loe.excitation_floor_deg * deg,
                              excitation_load_fraction=system.switch(loe.excitation_load_fraction),
-                             confirm_s=loe.confirm_s,
-                             max_load_fraction=loe.max_load_fraction,
+                             excitation_noise_factor=system.switch(loe.excitation_noise_factor),
+                             noise_gamma=loe.noise_gamma_1_s, confirm_s=loe.confirm_s,
+                             max_load_fraction=None if loe.max_load_fraction >= 1.0 else loe.max_load_fraction,
+                             load_scales=np.asarray(bank.nu)[:, 1] if loe.load_gate == "best_fit" else None,
                              linear_range_m=loe.linear_range_deg * deg, stall_hold_s=loe.stall_hold_s),
         stall=system.StallParams(
             pole=stl.pole_1_s, evaluator=evaluator_params(stl.evaluator), tau=stl.tau_deg * deg,

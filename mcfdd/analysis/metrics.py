@@ -14,11 +14,15 @@
 - Detectability: the distance (16) |k_j - k_i| / (k_i + k_j) between the plant's own small-error
   gains, fault-free against the true fault, at the run's peak load; a run is separable under
   the campaign's uncertainty when that distance exceeds what the uncertainty alone creates.
+- Paired comparison of two campaigns of one space (same scenarios, two FDDs): per outcome the
+  discordant runs and McNemar's exact test, per fault kind the detection-time differences on the
+  runs both detect and the Wilcoxon signed-rank test.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 from scipy.special import betaincinv
 
 from mcfdd.analysis import scenarios
@@ -220,3 +224,82 @@ def decision_history(detected, t_s, onset_s):
         models = detected[r, fault[r]]
         switches[r] = int(np.count_nonzero(models[1:] != models[:-1]))
     return {"first_model": first, "detection_time_s": time, "prevailing_model": prevailing, "switches": switches}
+
+
+LOAD_FRACTION_HIGH = 0.4  # peak hinge-load fraction from which a disconnection must be detected (issue 22)
+
+
+def faulty_runs(cols) -> np.ndarray:
+    """Runs that must be detected: status ok, a parametric fault whose nearest grid model is a fault model."""
+    return ((np.asarray(cols["status"]) == 0) & np.isin(np.asarray(cols["fault_kind"]), scenarios.PARAMETRIC)
+            & (np.asarray(cols["true_model"]) > 0))
+
+
+def any_false_alarm(cols) -> np.ndarray:
+    """A false alarm of either system: an LOE detection or a stall identification (signal rules) outside a stall."""
+    return np.asarray(cols["false_alarm"]) | np.asarray(cols["eta_false_signal"])
+
+
+def paired_outcomes(cols) -> dict:
+    """Per outcome of a campaign's scenario table: (what its runs are, (n,) runs it counts, (n,) event).
+
+    ``cols`` maps column names to (n,) arrays (a scenario table). The events are the campaign's
+    own outcome columns; an outcome whose runs are none in a campaign is still listed.
+    """
+    ok = np.asarray(cols["status"]) == 0
+    kind = np.asarray(cols["fault_kind"])
+    free, faulty = ok & (kind == "none"), faulty_runs(cols)
+    missed = np.asarray(cols["missed"])
+    loaded = faulty & (kind == "disconnection") & (np.asarray(cols["peak_load_fraction"]) >= LOAD_FRACTION_HIGH)
+    events = np.asarray(cols["stall_events"])
+    stalls = ok & (events > 0)
+    return {
+        "loe_false_alarm": ("fault-free runs", free, np.asarray(cols["false_alarm"])),
+        "any_false_alarm": ("fault-free runs", free, any_false_alarm(cols)),
+        "false_identification": ("fault-free runs", free, np.asarray(cols["false_identification"])),
+        "missed": ("faulty runs", faulty, missed),
+        "missed_separable": ("separable faulty runs", faulty & np.asarray(cols["separable"]), missed),
+        "missed_disconnection_loaded": (f"disconnections, peak load fraction >= {LOAD_FRACTION_HIGH}", loaded, missed),
+        "not_identified_correctly": ("faulty runs", faulty, ~np.asarray(cols["identified_correctly"])),
+        "stall_missed_signal": ("runs with stall loads", stalls, np.asarray(cols["stall_identified_signal"]) < events),
+        "stall_missed_model": ("runs with stall loads", stalls, np.asarray(cols["stall_identified_model"]) < events),
+        "stall_outside_signal": ("all runs", ok, np.asarray(cols["eta_false_signal"])),
+        "stall_outside_model": ("all runs", ok, np.asarray(cols["eta_false_model"])),
+        "jam_taken_for_stall": ("jammed runs", ok & (kind == "jamming"), np.asarray(cols["jam_taken_for_stall"])),
+    }
+
+
+def mcnemar_exact(only_a: int, only_b: int) -> float:
+    """Two-sided p-value of McNemar's exact test: ``only_a`` runs with the event in campaign a only and
+    ``only_b`` in b only; under no difference each discordant run is a fair coin (binomial test at 1/2).
+    1.0 when no run is discordant."""
+    n = int(only_a) + int(only_b)
+    return 1.0 if n == 0 else float(stats.binomtest(int(only_a), n, 0.5).pvalue)
+
+
+def paired_counts(event_a, event_b, confidence: float = 0.95) -> dict:
+    """Events of one outcome on the same runs in campaigns a and b ((n,) bool each): counts, rates with
+    Clopper-Pearson intervals, the discordant runs (``only_a``: event in a and not in b) and McNemar's p."""
+    a, b = np.asarray(event_a, bool), np.asarray(event_b, bool)
+    ra, rb = rate(int(a.sum()), a.size, confidence), rate(int(b.sum()), b.size, confidence)
+    only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
+    return {"runs": a.size, "events_a": ra["k"], "rate_a": ra["rate"], "rate_a_lo": ra["lo"], "rate_a_hi": ra["hi"],
+            "events_b": rb["k"], "rate_b": rb["rate"], "rate_b_lo": rb["lo"], "rate_b_hi": rb["hi"],
+            "only_a": only_a, "only_b": only_b, "p_value": mcnemar_exact(only_a, only_b)}
+
+
+def paired_differences(x_a, x_b) -> dict:
+    """Paired values of the same runs in campaigns a and b (e.g. detection times, (n,) each): medians, the
+    median of b - a and the two-sided Wilcoxon signed-rank p-value (zero differences dropped; 1.0 when every
+    difference is zero, nan without runs)."""
+    a, b = np.asarray(x_a, float), np.asarray(x_b, float)
+    d = b - a
+    nonzero = d[d != 0.0]
+    if d.size == 0:
+        p = float("nan")
+    elif nonzero.size == 0:
+        p = 1.0
+    else:
+        p = float(stats.wilcoxon(nonzero).pvalue)
+    med = (lambda v: float(np.median(v)) if v.size else float("nan"))
+    return {"runs": d.size, "median_a": med(a), "median_b": med(b), "median_difference": med(d), "p_value": p}

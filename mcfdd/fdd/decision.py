@@ -11,6 +11,9 @@ an excitation floor no decision is made: the signature is only meaningful while 
 driven; the floor may apply to a load-weighted ||u|| (see
 :func:`mcfdd.fdd.system.excitation_weight`).
 
+The floor may also follow the run's own sensor noise (see :func:`noise_step`): ||u|| of a rod at
+rest is about 0.8 times the noise RMS, which varies from one position sensor to another.
+
 A decoded model becomes a decision once it has been decoded without interruption for a
 confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
 keeps short noise-driven signatures from raising alarms.
@@ -18,9 +21,52 @@ keeps short noise-driven signatures from raising alarms.
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import jax.numpy as jnp
 
 NO_DECISION = -1
+# E|n_k - 2 n_(k-1) + n_(k-2)| / sigma for white Gaussian noise n of RMS sigma: the second
+# difference has variance 6 sigma^2 and a half-normal magnitude of mean sqrt(2 / pi) sqrt(6) sigma.
+SECOND_DIFFERENCE_MEAN = math.sqrt(12.0 / math.pi)
+
+
+class NoiseState(NamedTuple):
+    """Online estimate of the position sensor's noise (:func:`noise_step`)."""
+
+    previous: jnp.ndarray  # (2,) measured positions of the two samples before (m)
+    mean: jnp.ndarray  # exponentially weighted sum of |second difference| (m)
+    weight: jnp.ndarray  # the sum of those weights (0 until the first second difference)
+    seen: jnp.ndarray  # samples seen, counted up to 2 (a second difference needs two before)
+
+
+def noise_init(u0) -> NoiseState:
+    u0 = jnp.asarray(u0)
+    zero = jnp.zeros_like(u0)
+    return NoiseState(jnp.stack([u0, u0]), zero, zero, zero)
+
+
+def noise_step(state: NoiseState, u, gamma, dt_s: float):
+    """RMS of the position sensor's noise estimated online from the measured position u (m).
+
+    The second difference ``u_k - 2 u_(k-1) + u_(k-2)`` is a high-pass that removes a held
+    position and a constant rate: what is left of the rod is its acceleration times dt^2 (at most
+    about 0.2 mm during the few samples in which a slew starts or stops, nothing on a hold or a
+    steady slew), while white sensor noise of RMS sigma keeps a mean magnitude of
+    ``SECOND_DIFFERENCE_MEAN sigma``. The estimate is that mean over the samples so far, each
+    forgotten at ``gamma`` (1/s), normalised by the sum of the weights (so it is unbiased from the
+    third sample on, with no start-up transient), divided by ``SECOND_DIFFERENCE_MEAN``. With
+    gamma = 0.1 1/s (10 s of memory) a manoeuvre's few rod accelerations move it by about 1 %.
+    Returns (new state, estimated RMS in m; 0 before the third sample).
+    """
+    d2 = u - 2.0 * state.previous[0] + state.previous[1]
+    decay = jnp.exp(-gamma * dt_s)
+    gain = jnp.where(state.seen >= 2.0, 1.0 - decay, 0.0)
+    mean = decay * state.mean + gain * jnp.abs(d2)
+    weight = decay * state.weight + gain
+    rms = jnp.where(weight > 0.0, mean / jnp.where(weight > 0.0, weight, 1.0), 0.0) / SECOND_DIFFERENCE_MEAN
+    return NoiseState(jnp.stack([u, state.previous[0]]), mean, weight, jnp.minimum(state.seen + 1.0, 2.0)), rms
 
 
 def excitation_init(u0):

@@ -2,20 +2,37 @@
 
 - Model detection for parametric LOE faults (Fig. 1, Section 4): a bank of detectors (20) with
   the gains k^(i) of the LPV bank, Narendra evaluators, the normalised decision (15) and the
-  signature decoding into a detected model id. The affine gains of eq. (4) cannot follow the
-  square-root fall of the gain towards a stall load, so residuals are evaluated only while the
-  bank's own estimate of the hinge-load fraction, ``|1 - (k_fault-free / k_no-load)^2|`` (the
-  no-load model is the one with nu = [1, 0]), stays below ``max_load_fraction`` and the tracking
+  signature decoding into a detected model id. Residuals are evaluated only while the tracking
   error stays inside the servo valve's linear range (beyond it the rod moves at a saturated rate,
-  which no first-order model follows). While evaluation is suspended, and at the first sample
-  after (the last gated sample's step propagates the first-order prediction of a saturated
+  which no first-order model follows) and the estimated hinge-load fraction stays below
+  ``max_load_fraction`` (1: no load gate): the affine gains of eq. (4) cannot follow the
+  square-root fall of the gain towards a stall load, and the uncertainty of the hinge load and
+  supply pressure moves the gain more the nearer the stall. The bank's estimate,
+  ``1 - (k_fault-free / k_no-load)^2`` (the no-load model is the one with nu = [1, 0]), is the
+  healthy surface's load: gated on it (``load_gate = "fault_free"``), the gate also hides a
+  disconnected rod, which carries no load, exactly where its disconnection shows most (large
+  deflections), and on a rod held at its stop the estimate chatters with the direction estimate
+  between about +0.7 and -1.1, restarting the filters at every switch. Gated on the load the rod's
+  motion shows (``load_gate = "best_fit"``), the estimate is multiplied by the surface
+  effectiveness nu2 of the bank model with the smallest evaluated residual so far (the evaluator
+  memories before this sample, which share ||u||): a disconnected rod is best explained by the
+  no-load model and is never gated, a healthy rod near a stall load by the fault-free or a
+  pressure-loss model (nu2 = 1) and is gated as before. nu2 alone, not nu2 / nu1 (a pressure-loss
+  model's own load fraction): a slow servo fits a pressure-loss model, and gating it earlier
+  raised false alarms under Kci +-10 % (README, FDD design). While evaluation is suspended, and at
+  the first sample after (the last gated sample's step propagates the first-order prediction of a saturated
   sample, which the rod did not follow), the bank's filters and the excitation low-pass restart
   from equilibrium with the measured position (residual 0, ||u|| input 0), so no filter carries a
   transient of the gated interval out of it: after the gate reopens, every residual and ||u||
   are driven by the same measured tracking error from zero. Decisions are made while ||u|| is
   above the excitation floor, optionally with each sample's excitation weighted by the estimated
   load fraction (``excitation_load_fraction``): surface losses only show where the hinge load is
-  large, and sensor noise dominates the ratio at small excitation. While a stall
+  large, and sensor noise dominates the ratio at small excitation. The floor is absolute or, with
+  ``excitation_noise_factor`` > 0, at least that many times the run's own sensor-noise RMS
+  (estimated online from the measured position, :func:`mcfdd.fdd.decision.noise_step`) in the
+  units of ||u|| (times the evaluator's DC gain alpha + beta / gamma): ||u|| of a rod at rest is
+  about 0.8 times the noise RMS, so an absolute floor set for the noisiest sensor decides nothing
+  on a quiet one's small manoeuvres and sits at the noise of the noisiest. While a stall
   load is identified (eta = 1 by either method) and ``stall_hold_s`` after, no LOE decision is
   made: the stall awareness the paper's Section 6.2 asks for, so that the large residuals of a
   stall do not raise LOE alarms.
@@ -66,8 +83,16 @@ class LoeParams(NamedTuple):
     # excitation counts in full from this estimated hinge-load fraction up;
     # None: everywhere, the weighted evaluator not built
     excitation_load_fraction: float | None
+    # the floor is at least this many sensor-noise RMS (estimated online) in the units of ||u||;
+    # None: the floor is absolute, the noise estimate not built
+    excitation_noise_factor: float | None
+    noise_gamma: float  # forgetting rate of the online noise estimate (1/s)
     confirm_s: float  # a decoded model must persist this long to become a decision
-    max_load_fraction: float  # evaluation is suspended above this estimated hinge-load fraction
+    # evaluation is suspended above this estimated hinge-load fraction; None: no load gate (not built)
+    max_load_fraction: float | None
+    # (N,) surface effectiveness nu2 of each model: the gate applies to the load the surface of the model that
+    # explains the rod best carries; None: to the fault-free estimate (the healthy surface's load)
+    load_scales: jnp.ndarray | None
     linear_range_m: float  # ... and while |u_c - u| exceeds the servo valve's linear range
     stall_hold_s: float  # no LOE decision while a stall load is identified and this long after
 
@@ -92,6 +117,7 @@ class FddState(NamedTuple):
     band: jnp.ndarray
     band_xi: jnp.ndarray
     band_w_xi: jnp.ndarray | None  # evaluated load-weighted excitation (None without load weighting)
+    noise: decision.NoiseState | None  # online sensor-noise estimate (None with an absolute floor)
     was_valid: jnp.ndarray  # residuals were evaluated at the previous sample
     # low-passed measured tracking error u_c - u up to the previous sample (its sign is sgn(xdot))
     error_lp: jnp.ndarray
@@ -111,6 +137,7 @@ class FddOutputs(NamedTuple):
     theta_w: jnp.ndarray  # the same weighted by the estimated load fraction (= theta_u without load weighting)
     load_fraction: jnp.ndarray  # estimated hinge-load fraction (residual evaluation stops above the limit)
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
+    noise_rms: jnp.ndarray | None  # online estimate of the position sensor's noise RMS (m; None: not built)
     iota: jnp.ndarray  # (N,) signature
     decoded: jnp.ndarray  # model id of the signature, -1 for none
     detected: jnp.ndarray  # identification: confirmed model id, -1 for no decision
@@ -167,6 +194,7 @@ def init(params: FddParams, u0) -> FddState:
         band=decision.excitation_init(u0),
         band_xi=jnp.zeros_like(u0),
         band_w_xi=None if params.loe.excitation_load_fraction is None else jnp.zeros_like(u0),
+        noise=None if params.loe.excitation_noise_factor is None else decision.noise_init(u0),
         was_valid=jnp.asarray(True),
         error_lp=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
@@ -189,7 +217,10 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     k = once(lpv.gains(bank, u, direction, vcas_m_s, altitude_m), params.one)
 
     load = load_fraction(bank, k)
-    valid = (jnp.abs(load) <= loe.max_load_fraction) & (jnp.abs(u_c - u) <= loe.linear_range_m)
+    valid = jnp.abs(u_c - u) <= loe.linear_range_m
+    if loe.max_load_fraction is not None:
+        gated = load if loe.load_scales is None else load * loe.load_scales[jnp.argmin(state.bank_xi)]
+        valid = (jnp.abs(gated) <= loe.max_load_fraction) & valid
     running = valid & state.was_valid
     bank_xq = jnp.where(running, state.bank_xq, residual.init(u))
     bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
@@ -208,7 +239,15 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     if loe.tau_schedule is not None:
         tau = jnp.maximum(tau, loe.tau_schedule * thresholds.nearest_ratio(k, bank.k0))
     iota = decision.signature(theta, theta_u, tau)
-    excited = theta_w >= loe.excitation_floor
+    floor = loe.excitation_floor
+    if loe.excitation_noise_factor is None:
+        noise, noise_rms = None, None
+    else:
+        noise, noise_rms = once(decision.noise_step(state.noise, u, loe.noise_gamma, dt_s), params.one)
+        ev = loe.evaluator
+        floor = once(jnp.maximum(floor, loe.excitation_noise_factor * (ev.alpha + ev.beta / ev.gamma) * noise_rms),
+                     params.one)
+    excited = theta_w >= floor
     stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
@@ -227,8 +266,8 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
                                           loe.detection_confirm_s, dt_s)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, error_lp, confirm, detect, since_stall, stall_xq,
-                   stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, iota, decoded, detected,
+    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, noise, valid, error_lp, confirm, detect, since_stall,
+                   stall_xq, stall_xi, signal, model)
+    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, noise_rms, iota, decoded, detected,
                            once(fault == 1, params.one), r_stall,
                            theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
