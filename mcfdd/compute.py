@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 ONE = 1.0  # the default of the ``one`` leaves of the parameters (PlantModel, FddParams)
 
@@ -48,13 +47,3 @@ def once(tree, one):
         return (x.astype(one.dtype) / one).astype(x.dtype)
 
     return jax.tree.map(leaf, tree)
-
-
-def array_module(*values):
-    """``jax.numpy`` if any of ``values`` is a JAX array (a tracer included), else ``numpy``.
-
-    A formula shared by the step and the set-up (atmosphere, trim, hinge table) then runs traced
-    inside the step and in NumPy on host arrays at set-up, where every eager ``jax.numpy``
-    operation would compile a program of its own (about 50 per command before this).
-    """
-    return jnp if any(isinstance(v, jax.Array) for v in values) else np

@@ -253,6 +253,10 @@ def test_bad_lpv_fit_config_names_the_key(edit, key):
 
 def test_lpv_fit_config_defaults_are_the_paper_models():
     cfg = config.parse(config.LpvFitConfig, _base())
-    assert [(m.name, (m.nu1, m.nu2)) for m in cfg.models] == [(n, nu) for n, nu in lpv.PAPER_MODELS]
+    # Section 6.1: fault-free, 100 / 67 / 34 % loss of surface effectiveness, 15 / 27 % pressure loss
+    assert [(m.nu1, m.nu2) for m in cfg.models] == [(1.0, 1.0), (1.0, 0.0), (1.0, 0.33), (1.0, 0.66), (0.85, 1.0),
+                                                    (0.73, 1.0)]
+    assert [m.name for m in cfg.models] == ["fault-free", "surface-loss-100", "surface-loss-67", "surface-loss-34",
+                                            "pressure-loss-15", "pressure-loss-27"]
     m = build.lpv_manoeuvre_params(cfg, "training")
     np.testing.assert_allclose(m.amplitude, [0.2, -0.2])
