@@ -70,6 +70,8 @@ START = time.time()  # the subprocess's start: start-up is measured from here
 
 import mcfdd  # noqa: E402  first: one JAX CPU device per core, before JAX creates its backend
 
+# isort: split
+
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402

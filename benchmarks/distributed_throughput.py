@@ -34,6 +34,8 @@ from pathlib import Path
 
 import mcfdd  # first: one JAX CPU device per core, before JAX creates its backend
 
+# isort: split
+
 import pandas as pd  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))

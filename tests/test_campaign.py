@@ -66,7 +66,8 @@ def scenario_table(out: Path) -> pd.DataFrame:
 FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
-ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.confirm_s": 0.0,
+ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
+            "fdd.loe.confirm_s": 0.0,
             "fdd.loe.excitation_floor_deg": 0.005}
 N_SHORT = 320
 
@@ -213,7 +214,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     harsh = (SMALL.format(n=24).replace("vcas_kt = [200.0, 360.0]", "vcas_kt = [300.0, 360.0]")
              .replace("altitude_m = [0.0, 6000.0]", "altitude_m = [0.0, 1500.0]")
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
-             .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
+             .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]',
+                      'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
              + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n"
              "detection_contrast = 0.0\n")
@@ -285,7 +287,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
         np.testing.assert_allclose(float(raw["stall_worst_latency_signal_s"][i]), worst, atol=1e-12)
         after = t >= (onset[i] if np.isfinite(onset[i]) else settings.settle_s)
         rate, load = np.abs(np.asarray(plant.rate_m_s[i])), np.asarray(plant.load_fraction[i])
-        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf) for f in (1 + 1e-9, 1 - 1e-9)]
+        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf)
+                 for f in (1 + 1e-9, 1 - 1e-9)]
         assert peaks[0] * (1 - 1e-12) <= float(raw["peak_load_fraction"][i]) <= peaks[1] * (1 + 1e-12), (i, peaks)
         np.testing.assert_allclose(float(raw["peak_deflection_deg"][i]),
                                    np.degrees(np.abs(np.asarray(plant.x_m[i])[after]).max() / model.actuator.r_arm_m),
@@ -314,7 +317,8 @@ def test_zero_events_bound_is_about_three_over_n():
 
 
 def test_latin_hypercube_puts_one_point_in_each_stratum():
-    axes = [scenarios.Axis("amplitude", "range", lo=-1.0, hi=1.0), scenarios.Axis("t_start_s", "range", lo=0.0, hi=10.0),
+    axes = [scenarios.Axis("amplitude", "range", lo=-1.0, hi=1.0),
+            scenarios.Axis("t_start_s", "range", lo=0.0, hi=10.0),
             scenarios.Axis("kd_scale", "range", lo=0.7, hi=1.3)]
     n = 97
     cols, rows = scenarios.design_table(axes, n, "lhs", seed=3)
@@ -325,14 +329,16 @@ def test_latin_hypercube_puts_one_point_in_each_stratum():
 
 
 def test_designs_respect_the_mach_limit_and_grid_axes():
-    axes = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0), scenarios.Axis("altitude_m", "range", lo=0.0, hi=12000.0),
+    axes = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0),
+            scenarios.Axis("altitude_m", "range", lo=0.0, hi=12000.0),
             scenarios.Axis("fault_kind", "choices", ("none", "leakage"))]
     cols, n = scenarios.design_table(axes, 64, "sobol", seed=1, grid_axes=("fault_kind",), max_mach=0.82)
     assert n == 128
     assert list(cols["fault_kind"][:64]) == ["none"] * 64
     mach = np.asarray(scenarios.atmosphere.mach(cols["vcas_kt"] * scenarios.atmosphere.KT_TO_M_S, cols["altitude_m"]))
     assert mach.max() <= 0.82 + 1e-9
-    grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4), scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
+    grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4),
+            scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
     cols, n = scenarios.design_table(grid, 1, "grid", seed=0, max_mach=0.82)
     assert n < 8 and set(cols["altitude_m"]) == {0.0, 12000.0}
 

@@ -16,12 +16,12 @@ import time
 
 import pandas as pd
 import pytest
-from test_campaign import SMALL
 
 import mcfdd
 from mcfdd import cli, io, report
 from mcfdd.analysis import build
 from mcfdd.workflows import campaign as campaign_workflow
+from test_campaign import SMALL
 
 N = 384
 CONFIGS = pathlib.Path(__file__).resolve().parent.parent / "configs"

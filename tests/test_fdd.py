@@ -178,8 +178,9 @@ def test_frozen_filter_matches_transfer_function(k, k_j):
     driven by the continuous u(t) and held u_c(t) is the exact ZOH response (lsim, interp=False) of
     Q(s) [G_j; 1], connected in state space by python-control. Both obey, per sample,
     r+ = exp(-aT) r + g (u_c - u_n) with our g_d = c (e^{-kT} - e^{-k_j T}) and the exact
-    g_c = (a/k0)(k_j - k)(e^{-k_j T} - e^{-aT})/(a - k_j), both (a/k0)(k_j - k) T (1 + O(T)); so |r_d - r_c| <= |g_d - g_c| max|u_c - u| / (1 - e^{-aT}),
-    which is O(|k_j - k| T) max|u_c - u| and 0 (up to rounding) for k_j = k.
+    g_c = (a/k0)(k_j - k)(e^{-k_j T} - e^{-aT})/(a - k_j), both (a/k0)(k_j - k) T (1 + O(T)); so
+    |r_d - r_c| <= |g_d - g_c| max|u_c - u| / (1 - e^{-aT}), which is O(|k_j - k| T) max|u_c - u| and 0
+    (up to rounding) for k_j = k.
     """
     k0, a, n = 20.0, 3.0, 400
     u_c = np.cumsum(np.random.default_rng(1).normal(0.0, 2e-4, n))
@@ -462,7 +463,8 @@ def test_signature_and_threshold_direction():
 
 def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
     """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
-    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step against numpy, and f = 0 is constant tau."""
+    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step
+    against numpy, and f = 0 is constant tau."""
     n = 400
     u_c = smooth_command(n)
     gain = eq4_gains(bank, VCAS_M_S, ALT_M)
@@ -676,8 +678,8 @@ def test_load_weighted_excitation(bank):
     outs = {}
     floor_deg = 0.9  # between the weighted (0.78 deg) and unweighted (1.03 deg) peaks of this command
     for f in (0.0, 0.15):
-        params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f,
-                                                                   excitation_floor_deg=floor_deg)), bank, r_arm_m=R_ARM_M)
+        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f, excitation_floor_deg=floor_deg)
+        params = build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
 
         def body(state, inp):
             c, m, t = inp

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pandas as pd
+
 from test_campaign import SMALL
 
 

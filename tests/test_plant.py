@@ -225,7 +225,8 @@ def _implicit_reference(fault, delta_grid, load_slice, commands):
 
 
 @pytest.mark.parametrize("fault", [actuator.ActuatorFault(), actuator.ActuatorFault(nu1=0.73, onset_s=0.0),
-                                   actuator.ActuatorFault(nu2=0.0, onset_s=0.0)], ids=["healthy", "leakage", "disconnected"])
+                                   actuator.ActuatorFault(nu2=0.0, onset_s=0.0)],
+                         ids=["healthy", "leakage", "disconnected"])
 def test_saturated_slews_at_low_dynamic_pressure_match_implicit_reference(model, fault):
     """Full-deflection steps and a 2 Hz, 20 deg sine (faster than the rod) at 142 kt and 10 km.
 

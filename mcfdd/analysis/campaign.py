@@ -47,6 +47,7 @@ from mcfdd.compute import ONE, once
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
 
+
 class Status(enum.IntEnum):
     """Scenario status code, the ``status`` column of a campaign table; ``.meaning`` says what it means."""
 

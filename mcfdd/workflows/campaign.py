@@ -22,8 +22,16 @@ from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import bar, note
 from mcfdd.workflows import common
-from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, check_folder, dtype_of, load_bank,
-                                    precision, save_figure)
+from mcfdd.workflows.common import (
+    DEG_PER_RAD,
+    OutputFolderError,
+    as_config,
+    check_folder,
+    dtype_of,
+    load_bank,
+    precision,
+    save_figure,
+)
 
 CAMPAIGN_STATE = "campaign.json"
 # Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
