@@ -7,7 +7,6 @@ import math
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import jax
 import jsonschema
@@ -16,10 +15,9 @@ import pandas as pd
 import pytest
 
 import mcfdd
+from helpers import CONFIGS
 from mcfdd import cli, config, io
 from mcfdd.analysis import build
-
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def _valid():

@@ -17,6 +17,7 @@ import scipy.signal as sig
 from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
+from helpers import ROUNDING
 from mcfdd import io
 from mcfdd.analysis import build
 from mcfdd.config import FddConfig, LoeDetectionConfig
@@ -276,8 +277,8 @@ def test_grid_distances_and_thresholds_match_a_loop(bank):
                             ref_d[i, j, iv, ih, ix, isg] = dij
                             if mask[iv, ih, ix, isg]:
                                 ref[i, j] = min(ref[i, j], dij)
-    np.testing.assert_allclose(d, ref_d, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(d_min, ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(d, ref_d, **ROUNDING)
+    np.testing.assert_allclose(d_min, ref, **ROUNDING)
     np.testing.assert_allclose(tau, [min(ref[i, j] for j in range(n) if j != i) for i in range(n)], rtol=1e-12)
     assert np.all(tau > 0)
 
@@ -326,12 +327,12 @@ def test_evaluator_parameters_each_matter():
     more_alpha = np.asarray(run_evaluator(base._replace(alpha=1.5), r))
     np.testing.assert_allclose(more_alpha - theta, np.abs(r), rtol=1e-12)
     more_beta = np.asarray(run_evaluator(base._replace(beta=3.0), r))
-    np.testing.assert_allclose(more_beta - 0.5 * np.abs(r), 3.0 * (theta - 0.5 * np.abs(r)), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(more_beta - 0.5 * np.abs(r), 3.0 * (theta - 0.5 * np.abs(r)), **ROUNDING)
 
     t = np.arange(2000) * DT_S
     for gamma in (0.5, 2.0):
         xi = np.asarray(run_evaluator(evaluator.NarendraParams(0.0, 1.0, gamma), np.full(t.size, 0.2)))
-        np.testing.assert_allclose(xi, 0.2 / gamma * -np.expm1(-gamma * t), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(xi, 0.2 / gamma * -np.expm1(-gamma * t), **ROUNDING)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -504,7 +505,7 @@ RULES = stall.SignalRules(rate_min_m_s=2.0 * DEG_M, command_min_m=10.0 * DEG_M, 
 @jax.jit
 def run_signal(rules, iota, u_c, u):
     """stall.signal_step over a trace (n,) sampled at DT_S -> eta (n,)."""
-    t = jnp.arange(iota.shape[0]) * DT_S
+    t = jnp.arange(iota.shape[0], dtype=float) * DT_S
 
     def body(state, inp):
         i, c, m, tk = inp
@@ -627,7 +628,7 @@ def fdd_on_lpv_model(params, model, u_c):
     -> detected ids."""
     fdd_on_lpv_model.traces += 1
     bank = params.loe.bank
-    t = jnp.arange(u_c.shape[0]) * DT_S
+    t = jnp.arange(u_c.shape[0], dtype=float) * DT_S
 
     def body(carry, inp):
         u, state = carry
