@@ -47,7 +47,7 @@ import numpy as np
 import optax
 
 from mcfdd.analysis import campaign, scenarios
-from mcfdd.analysis.simulate import run_keys, scan_steps
+from mcfdd.analysis.simulate import run_keys, sample_time, scan_steps
 from mcfdd.fdd import system
 from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 
@@ -339,7 +339,8 @@ def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, setti
         inner, acc = carry
         new, out, fo = campaign.step_one(params, fdd_params, settings, scenario, truth, inner, k, noise, dt_s,
                                          substeps, kinds)
-        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], k * dt_s, out, fo)), None
+        t = sample_time(k, dt_s)
+        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], t, out, fo)), None
 
     ((_, _, red), acc), _ = scan_steps(body, (carry, soft_init(params.qbar_pa.dtype)), key, n_steps,
                                        closed_loop.NOISE_DIM)
