@@ -9,6 +9,7 @@ gap; no recompilation for new FDD numbers; configuration errors naming their key
 """
 
 import argparse
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -379,8 +380,6 @@ def test_bad_search_and_tune_keys_are_named(tmp_path, cls, text, key):
 
 
 def test_shipped_configs_parse():
-    from pathlib import Path
-
     folder = Path(__file__).resolve().parents[1] / "configs"
     for name, cls in (("worst_case_stall.toml", config.WorstCaseConfig),
                       ("worst_case_stall_detect.toml", config.WorstCaseConfig),
