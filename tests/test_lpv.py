@@ -72,7 +72,7 @@ def test_fit_recovers_known_lpv_coefficients(small, model, training):
     """Responses of an LPV bank with known coefficients are fitted back to those coefficients."""
     start, free = lpv_fit.initial_bank(model, build.lpv_nus(small), *build.lpv_training_points(small.envelope, 0.82))
     offset = np.array([[1.0, 0.3, -0.2], [0.4, -0.2, 0.1], [-0.5, 0.3, 0.2], [1.0, -0.6, 0.3]])
-    known = start._replace(coef=start.coef + jnp.asarray(offset) * jnp.arange(1, 7)[:, None, None] / 6.0)
+    known = start._replace(coef=start.coef + jnp.asarray(offset) * jnp.arange(1.0, 7.0)[:, None, None] / 6.0)
     data = training._replace(x_m=lpv_fit.responses(known, training, small.runs.dt_s))
     free = free & (np.arange(6) != 2)
     cfg = config.replace(small, {"optimiser.iterations": 120})

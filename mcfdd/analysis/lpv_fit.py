@@ -38,6 +38,7 @@ import optax
 
 from mcfdd.analysis import batch
 from mcfdd.analysis.simulate import sample_time
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import lpv, thresholds
 from mcfdd.plant import actuator, atmosphere, closed_loop, hinge, manoeuvres
 
@@ -239,7 +240,7 @@ def _losses(coef, bank: lpv.GainBank, problem: FitProblem, weight, dt_s: float):
     return jnp.sum(weight * jnp.mean(e**2, axis=-1), axis=1) / jnp.maximum(jnp.sum(weight, axis=1), 1.0)
 
 
-_ADAM = optax.scale_by_adam()
+_ADAM = standard_promotion(optax.scale_by_adam())
 
 
 @partial(jax.jit, static_argnames="dt_s")

@@ -33,6 +33,7 @@ import numpy as np
 import optax
 
 from mcfdd.analysis import campaign, simulate, worst_case
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import evaluator, system
 from mcfdd.plant import closed_loop
 
@@ -226,7 +227,7 @@ class Result(NamedTuple):
 def tune(gap_and_grad_fn, theta0: Tunable, iterations: int, learning_rate: float, callback=None) -> Result:
     """Adam ascent of the smooth log gap. ``gap_and_grad_fn(theta)`` returns (gap, bounds, gradient);
     ``callback(i, gap, bounds)`` sees every evaluation. Evaluations: iterations + 1."""
-    opt = optax.adam(learning_rate)
+    opt = standard_promotion(optax.adam(learning_rate))
     theta = theta0
     state = opt.init(theta)
     thetas, gaps, all_bounds = [], [], []

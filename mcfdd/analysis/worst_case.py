@@ -48,6 +48,7 @@ import optax
 
 from mcfdd.analysis import campaign, scenarios
 from mcfdd.analysis.simulate import run_keys, sample_time, scan_steps
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import system
 from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 
@@ -407,7 +408,7 @@ def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callbac
     feasible one (up to the Adam step). ``callback(i, score, aux)`` sees every evaluation.
     Evaluations: S (iterations + 1).
     """
-    opt = optax.adam(learning_rate)
+    opt = standard_promotion(optax.adam(learning_rate))
     u = jnp.asarray(u0)
     state = opt.init(u)
     best_u, best = u, jnp.full(u.shape[0], -jnp.inf, u.dtype)
