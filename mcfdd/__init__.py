@@ -16,31 +16,31 @@ from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS befo
 
 __version__ = "0.1.0"
 
-_EXPORTS = {
-    "Status": "mcfdd.analysis.campaign",
-    "ConfigError": "mcfdd.config", "load_config": "mcfdd.config",
-    "CampaignResult": "mcfdd.workflows.campaign", "OutputFolderError": "mcfdd.workflows.campaign",
-    "campaign_executor": "mcfdd.workflows.campaign", "run_campaign": "mcfdd.workflows.campaign",
-    "FiguresResult": "mcfdd.workflows.figures", "paper_figures": "mcfdd.workflows.figures",
-    "LpvFitResult": "mcfdd.workflows.fit_lpv", "fit_lpv": "mcfdd.workflows.fit_lpv",
-    "Histories": "mcfdd.workflows.simulate", "simulate": "mcfdd.workflows.simulate",
-    "TuneResult": "mcfdd.workflows.tune", "tune": "mcfdd.workflows.tune",
-    "WorstCaseResult": "mcfdd.workflows.worst_case", "worst_case": "mcfdd.workflows.worst_case",
-    "dask_cluster": "mcfdd.workflows.cluster", "dask_security": "mcfdd.workflows.cluster",  # the distributed extra
+_EXPORTS = {  # module -> the names it gives the public face
+    "mcfdd.analysis.campaign": ("Status",),
+    "mcfdd.config": ("ConfigError", "load_config"),
+    "mcfdd.workflows.campaign": ("CampaignResult", "OutputFolderError", "campaign_executor", "run_campaign"),
+    "mcfdd.workflows.figures": ("FiguresResult", "paper_figures"),
+    "mcfdd.workflows.fit_lpv": ("LpvFitResult", "fit_lpv"),
+    "mcfdd.workflows.simulate": ("Histories", "simulate"),
+    "mcfdd.workflows.tune": ("TuneResult", "tune"),
+    "mcfdd.workflows.worst_case": ("WorstCaseResult", "worst_case"),
+    "mcfdd.workflows.cluster": ("dask_cluster", "dask_security"),  # the optional 'distributed' extra
 }
-_NAMES = {"dask_security": "security"}  # exported under another name than in its module
+_MODULE = {name: module for module, names in _EXPORTS.items() for name in names}
+_RENAMED = {"dask_security": "security"}  # public name -> its name in its module
 
 
 def __getattr__(name: str):
-    if name not in _EXPORTS:
+    if name not in _MODULE:
         raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), _NAMES.get(name, name))
+    value = getattr(importlib.import_module(_MODULE[name]), _RENAMED.get(name, name))
     globals()[name] = value
     return value
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+    return sorted(set(globals()) | set(_MODULE))
 
 
-__all__ = sorted(["__version__", *_EXPORTS])
+__all__ = sorted(["__version__", *_MODULE])

@@ -11,7 +11,7 @@ pydantic's error into that :class:`ConfigError`.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, WrapValidator, model_validator
 from pydantic_core import PydanticUndefined
@@ -83,11 +83,7 @@ class Section(BaseModel):
     """A TOML table: frozen, unknown keys refused, strict types, no nan or inf, lists read as tuples."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", strict=True, allow_inf_nan=False)
-
-    @classmethod
-    def unknown(cls, key: str) -> Invalid:
-        """The error of an unknown key."""
-        return Invalid(key, f"unknown key; allowed keys are {', '.join(sorted(cls.model_fields))}")
+    UNKNOWN: ClassVar[str] = "unknown key; allowed keys are"  # the message of an unknown key, before the keys
 
     @model_validator(mode="before")
     @classmethod
@@ -96,7 +92,7 @@ class Section(BaseModel):
             return data
         for key in data:
             if key not in cls.model_fields:
-                raise cls.unknown(key)
+                raise Invalid(key, f"{cls.UNKNOWN} {', '.join(sorted(cls.model_fields))}")
         return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
 
     @model_validator(mode="after")

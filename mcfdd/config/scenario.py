@@ -20,7 +20,7 @@ Fault sizes are drawn per kind (``leakage_size``, ``surface_damage_size``) and m
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Union
+from typing import Annotated, ClassVar, Union
 
 from pydantic import (
     AfterValidator,
@@ -170,11 +170,8 @@ class _Space(Section):
     (``leakage_size``, ``surface_damage_size``) and merged into ``fault_size``.
     """
 
+    UNKNOWN: ClassVar[str] = "unknown axis; allowed axes are"
     _order: tuple[str, ...] = PrivateAttr(())
-
-    @classmethod
-    def unknown(cls, key: str) -> Invalid:
-        return Invalid(key, f"unknown axis; allowed axes are {', '.join(sorted(cls.model_fields))}")
 
     @model_validator(mode="wrap")
     @classmethod
@@ -199,4 +196,6 @@ class _Space(Section):
 
 
 SpaceConfig = create_model("SpaceConfig", __base__=_Space, __doc__=_Space.__doc__, __module__=__name__,
-                           **{c.name: (axis_type(c), Field(None, description=c.doc or None)) for c in columns.AXES})
+                           **{c.name: (axis_type(c), Field(None, description=c.doc or None,
+                                                           json_schema_extra={"default": c.default}))
+                              for c in columns.AXES})  # an axis left out is the column's default

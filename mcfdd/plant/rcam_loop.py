@@ -26,19 +26,9 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.plant import (
-    actuator,
-    aircraft,
-    atmosphere,
-    control_law,
-    flight_law,
-    hinge,
-    manoeuvres,
-    rcam,
-    turbulence,
-    uncertainty,
-)
+from mcfdd.plant import actuator, aircraft, atmosphere, control_law, flight_law, hinge, manoeuvres, rcam, turbulence
 from mcfdd.plant.signals import RcamOutputs
+from mcfdd.plant.uncertainty import scaled
 
 
 class Lags(NamedTuple):
@@ -104,8 +94,8 @@ def build_model(actuator_params: actuator.ActuatorParams, aircraft_params: aircr
 
 def prepare(model: RcamModel, scenario, dt_s: float) -> RcamRunParams:
     """Per-run parameters: uncertainties applied, the level trim at (Vcas, h, mass), turbulence discretised."""
-    act = uncertainty.scaled(model.actuator, scenario)
-    body = uncertainty.scaled(model.rcam, scenario)
+    act = scaled(model.actuator, scenario)
+    body = scaled(model.rcam, scenario)
     trim = rcam.trim(body, scenario.vcas_m_s, scenario.altitude_m)
     qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
     return RcamRunParams(
