@@ -46,7 +46,6 @@ from mcfdd.config.files import (
                               to_dict,
                               to_json,
                               to_toml,
-                              with_overrides,
 )
 from mcfdd.config.kinds import (
                               DESIGNS,
@@ -92,5 +91,5 @@ __all__ = [
     "Scored", "SearchSettings", "Section", "SignalRulesConfig", "SimulateConfig", "Simulated", "SimulationConfig",
     "SpaceConfig", "StallDetectionConfig", "SweepConfig", "TuneConfig", "TuneSettings", "WorstCaseConfig", "bounded",
     "choice", "differences", "fdd_fragment", "infer_kind", "json_schema", "load", "load_config", "load_fdd_fragment",
-    "load_toml", "parse", "replace", "spec", "to_dict", "to_json", "to_toml", "with_overrides",
+    "load_toml", "parse", "replace", "spec", "to_dict", "to_json", "to_toml",
 ]
