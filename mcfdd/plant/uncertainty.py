@@ -16,5 +16,7 @@ def scaled(nominal: NamedTuple, scenario) -> NamedTuple:
     """``nominal`` (plant constants, e.g. ``ActuatorParams``) with each field an uncertainty scale of
     ``scenario`` (a :class:`~mcfdd.plant.closed_loop.Scenario`) multiplies, multiplied by it."""
     owner = type(nominal).__name__
-    return nominal._replace(**{field: getattr(nominal, field) * getattr(scenario, column.leaf)
-                               for column in columns.UNCERTAIN for kind, field in column.scales if kind == owner})
+    scale = {field: column.leaf for column in columns.UNCERTAIN for kind, field in column.scales if kind == owner}
+    # in the order of the constants' fields: the traced program, and so the compiled one, keeps one order
+    return nominal._replace(**{field: getattr(nominal, field) * getattr(scenario, scale[field])
+                               for field in nominal._fields if field in scale})
