@@ -70,12 +70,17 @@ START = time.time()  # the subprocess's start: start-up is measured from here
 
 import mcfdd  # noqa: E402  first: one JAX CPU device per core, before JAX creates its backend
 
+# isort: split
+
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from mcfdd import config, io  # noqa: E402
-from mcfdd.analysis import campaign  # noqa: E402
+from mcfdd.analysis import campaign, noise, simulate  # noqa: E402
+from mcfdd.compute import once  # noqa: E402
+from mcfdd.fdd import lpv, system  # noqa: E402
+from mcfdd.plant import closed_loop  # noqa: E402
 from mcfdd.workflows import campaign as campaign_runner  # noqa: E402
 from mcfdd.workflows.common import CompileCounter, precision as precision_context  # noqa: E402
 
@@ -310,8 +315,6 @@ def barrier_check() -> list[dict]:
     operations). XLA CPU fuses the shared expression into each carried value's loop; the
     optimisation barrier does not survive to fusion; :func:`mcfdd.compute.once` does.
     """
-    from mcfdd.compute import once
-
     def program(mode):
         def run(x, one):
             def body(c, _):
@@ -419,9 +422,6 @@ def measure_families(n_scenarios: int, n_steps: int, chunk_size: int, repeats: i
 
 def peer_functions(p: Problem, n_steps: int):
     """Jitted pieces of the Python-loop peer: init, one batched step (noise drawn inside), finalize."""
-    from mcfdd.analysis import noise
-    from mcfdd.plant import closed_loop
-
     kinds, dt_s, substeps = p.setup.kinds, p.c.dt_s, p.c.substeps
 
     def init_one(model, fdd_params, scenario, key):
@@ -501,8 +501,6 @@ def decision_margins(p: Problem, scenario: int, n_steps: int):
     Returns {decision: (n_steps,) array}. The signature (15) is included only for constant thresholds
     (``tau_schedule`` = 0).
     """
-    from mcfdd.analysis import simulate
-
     s, c = p.setup, p.c
     scen, _, keys = p.inputs(np.array([scenario]), 1)
     _, fo = simulate.fdd_batch(s.model, s.fdd_params, scen, keys, n_steps, c.dt_s, c.substeps, s.kinds)
@@ -605,10 +603,6 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
     scan; the last is that step fed a constant instead of the normals (the random numbers'
     cost, by ablation: the rest of the step compiles to the same fusions).
     """
-    from mcfdd.analysis import noise
-    from mcfdd.fdd import system
-    from mcfdd.plant import closed_loop
-
     p = Problem(n_scenarios, n_steps, n_scenarios)
     s, c = p.setup, p.c
     scen, truth, keys = p.inputs(p.chunks[0])
@@ -660,8 +654,6 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
 
 def ceiling_inputs(n: int, seed: int = 0) -> dict:
     """Per-scenario inputs of the C toy step: realistic ranges, LPV coefficients of the default bank."""
-    from mcfdd.fdd import lpv
-
     rng = np.random.default_rng(seed)
     bank, _ = lpv.from_dict(io.load_bank_dict(None), np.float32)
     vcas, alt = rng.uniform(82.0, 180.0, n), rng.uniform(0.0, 10000.0, n)

@@ -34,7 +34,11 @@ from pathlib import Path
 
 import mcfdd  # first: one JAX CPU device per core, before JAX creates its backend
 
+# isort: split
+
 import pandas as pd  # noqa: E402
+
+from mcfdd import io  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from campaign_throughput import campaign_config  # noqa: E402
@@ -93,8 +97,6 @@ def measure_modes(args, cache) -> list[dict]:
 
 def driver_part_s(result, rows: int, folder: Path) -> float:
     """Seconds the driver spends on one finished chunk of ``rows`` scenarios: its DataFrame and Parquet part."""
-    from mcfdd import io
-
     chunk = {name: result.scenarios[name].to_numpy()[:rows] for name in result.scenarios.columns}
     start = time.perf_counter()
     for i in range(5):

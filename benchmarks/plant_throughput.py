@@ -23,6 +23,8 @@ import time
 
 import mcfdd  # noqa: F401  (first: one JAX CPU device per core, before JAX creates its backend)
 
+# isort: split
+
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 

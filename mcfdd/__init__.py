@@ -4,35 +4,45 @@ The public face of the package (Ossmann and Varga, 2015): load a config, run a c
 tables, save its files. Importing ``mcfdd`` exposes two JAX CPU devices per core (``XLA_FLAGS``)
 before JAX starts its backends; if JAX was started first, a warning says so and the devices it
 has are used (same results, slower).
+
+The names below are re-exported from the modules that hold them, each imported on first use
+(PEP 562): ``import mcfdd`` and parsing a configuration (``mcfdd.config``) do not import JAX,
+so the command answers ``--help`` and refuses a bad configuration without starting it.
 """
 
+import importlib
+
 from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS before JAX starts its backends)
-from mcfdd.analysis.campaign import Status
-from mcfdd.config import ConfigError, load_config
-from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, campaign_executor, run_campaign
-from mcfdd.workflows.compare import CampaignMismatchError, CompareResult, compare
-from mcfdd.workflows.figures import FiguresResult, paper_figures
-from mcfdd.workflows.fit_lpv import LpvFitResult, fit_lpv
-from mcfdd.workflows.sensitivity import SensitivityResult, sensitivity
-from mcfdd.workflows.simulate import Histories, simulate
-from mcfdd.workflows.tune import TuneResult, tune
-from mcfdd.workflows.worst_case import WorstCaseResult, worst_case
 
 __version__ = "0.1.0"
 
+_EXPORTS = {  # module -> the names it gives the public face
+    "mcfdd.analysis.campaign": ("Status",),
+    "mcfdd.config": ("ConfigError", "load_config"),
+    "mcfdd.workflows.campaign": ("CampaignResult", "OutputFolderError", "campaign_executor", "run_campaign"),
+    "mcfdd.workflows.compare": ("CampaignMismatchError", "CompareResult", "compare"),
+    "mcfdd.workflows.figures": ("FiguresResult", "paper_figures"),
+    "mcfdd.workflows.fit_lpv": ("LpvFitResult", "fit_lpv"),
+    "mcfdd.workflows.sensitivity": ("SensitivityResult", "sensitivity"),
+    "mcfdd.workflows.simulate": ("Histories", "simulate"),
+    "mcfdd.workflows.tune": ("TuneResult", "tune"),
+    "mcfdd.workflows.worst_case": ("WorstCaseResult", "worst_case"),
+    "mcfdd.workflows.cluster": ("dask_cluster", "dask_security"),  # the optional 'distributed' extra
+}
+_MODULE = {name: module for module, names in _EXPORTS.items() for name in names}
+_RENAMED = {"dask_security": "security"}  # public name -> its name in its module
+
 
 def __getattr__(name: str):
-    """``mcfdd.dask_cluster`` and ``mcfdd.dask_security``, imported on first use (the ``distributed`` extra)."""
-    if name in ("dask_cluster", "dask_security"):
-        from mcfdd.workflows import cluster
+    if name not in _MODULE:
+        raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_MODULE[name]), _RENAMED.get(name, name))
+    globals()[name] = value
+    return value
 
-        return {"dask_cluster": cluster.dask_cluster, "dask_security": cluster.security}[name]
-    raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE))
 
 
-__all__ = [
-    "CampaignMismatchError", "CampaignResult", "CompareResult", "ConfigError", "FiguresResult", "Histories",
-    "LpvFitResult", "OutputFolderError", "SensitivityResult", "Status", "TuneResult", "WorstCaseResult", "__version__",
-    "campaign_executor", "compare", "dask_cluster", "dask_security", "fit_lpv", "load_config", "paper_figures",
-    "run_campaign", "sensitivity", "simulate", "tune", "worst_case",
-]
+__all__ = sorted(["__version__", *_MODULE])

@@ -9,7 +9,7 @@ import warnings
 from pathlib import Path
 
 import mcfdd
-from mcfdd import config, io, report
+from mcfdd import config, flags, io, report
 from mcfdd.workflows import common
 
 
@@ -39,8 +39,8 @@ CAMPAIGN_FLAGS = ("scenarios", "seed", "chunk_size")  # flags that set the campa
 
 def _campaign_config(args) -> config.CampaignConfig:
     """The campaign config with ``--set``, the campaign flags and the ``--fdd`` fragment; bad flags are named."""
-    flags = {key: getattr(args, key, None) for key in CAMPAIGN_FLAGS}
-    overrides = config.campaign_overrides(getattr(args, "set", None), flags, getattr(args, "fdd", None))
+    given = {key: getattr(args, key, None) for key in CAMPAIGN_FLAGS}
+    overrides = flags.campaign_overrides(getattr(args, "set", None), given, getattr(args, "fdd", None))
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
@@ -61,7 +61,7 @@ def cmd_campaign(args) -> int:
 
 
 def cmd_sensitivity(args) -> int:
-    cfg = mcfdd.load_config(args.config, "campaign", config.set_overrides(args.set))
+    cfg = mcfdd.load_config(args.config, "campaign", flags.set_overrides(args.set))
     out = io.out_dir("sensitivity", args.config, args.out, new=not args.resume)
     try:
         with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,

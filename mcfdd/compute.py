@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 ONE = 1.0  # the default of the ``one`` leaves of the parameters (PlantModel, FddParams)
 
@@ -50,11 +49,20 @@ def once(tree, one):
     return jax.tree.map(leaf, tree)
 
 
-def array_module(*values):
-    """``jax.numpy`` if any of ``values`` is a JAX array (a tracer included), else ``numpy``.
+def standard_promotion(tx):
+    """The optax transformation ``tx`` with its ``init`` and ``update`` traced under JAX's standard dtype promotion.
 
-    A formula shared by the step and the set-up (atmosphere, trim, hinge table) then runs traced
-    inside the step and in NumPy on host arrays at set-up, where every eager ``jax.numpy``
-    operation would compile a program of its own (about 50 per command before this).
+    optax's Adam raises its decay rates to the power of an int32 step count (bias correction), an
+    implicit int -> float promotion that strict promotion (under which the test suite runs the
+    package) refuses; the package's own code promotes nothing implicitly. Values do not change.
     """
-    return jnp if any(isinstance(v, jax.Array) for v in values) else np
+
+    def init(params):
+        with jax.numpy_dtype_promotion("standard"):
+            return tx.init(params)
+
+    def update(updates, state, params=None):
+        with jax.numpy_dtype_promotion("standard"):
+            return tx.update(updates, state, params)
+
+    return type(tx)(init, update)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import json
 import subprocess
-from importlib import metadata as importlib_metadata
-from importlib import resources
+from importlib import metadata as importlib_metadata, resources
 from pathlib import Path
 
 import filelock

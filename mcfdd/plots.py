@@ -484,8 +484,8 @@ def ranked_bars(df: pd.DataFrame, series, xlabel: str, top: int = 10, log: bool 
             pos = y + ((len(series) - 1) / 2 - k) * width
             ax.barh(pos, v, height=width, color=f"C{k}", alpha=1.0 if k == 0 else 0.55, label=label)
             if f"{column}_lo" in g:
-                err = np.clip([v - g[f"{column}_lo"].to_numpy(dtype=float), g[f"{column}_hi"].to_numpy(dtype=float) - v],
-                              0.0, None)
+                lo, hi = g[f"{column}_lo"].to_numpy(dtype=float), g[f"{column}_hi"].to_numpy(dtype=float)
+                err = np.clip([v - lo, hi - v], 0.0, None)
                 ax.errorbar(v, pos, xerr=np.nan_to_num(err), fmt="none", ecolor="k", elinewidth=0.8, capsize=2)
         if log:
             ax.set_xscale("log")

@@ -473,16 +473,17 @@ def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str 
     """Section of summary.md: the top factors of the false alarms and misses (regional sensitivity of ``runs``,
     :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses."""
     lines = ["", "## What drives the false alarms and misses", "",
-             f"Regional sensitivity of {runs} (no extra simulation): each parameter's values in the runs with the event "
-             "against the others, ranked by the distance D (Kolmogorov-Smirnov for ranges, total variation for lists), "
-             "with its p-value (not adjusted for the parameters tested); Cliff's delta > 0 where the events sit at "
-             "larger values, with its bootstrap interval; event rates per level of a list.", ""]
+             f"Regional sensitivity of {runs} (no extra simulation): each parameter's values in the runs with the "
+             "event against the others, ranked by the distance D (Kolmogorov-Smirnov for ranges, total variation "
+             "for lists), with its p-value (not adjusted for the parameters tested); Cliff's delta > 0 where the "
+             "events sit at larger values, with its bootstrap interval; event rates per level of a list.", ""]
     for outcome, g in regional.groupby("outcome", sort=False):
         whole = g.loc[g["runs"].idxmax()]  # a fault-size parameter counts within its fault kind's runs only
         few = "; few events: an indication" if whole["events"] < 10 else ""
         lines.append(f"- {outcome.replace('_', ' ')} ({whole['events']} of {whole['runs']} runs{few}): " + "; ".join(
             f"{r.factor} D {r.statistic:.2f} (p {r.p_value:.2g}), " + (
-                f"delta {r.effect:+.2f} [{r.effect_lo:+.2f}, {r.effect_hi:+.2f}]" if r.kind == "continuous" else r.rates)
+                f"delta {r.effect:+.2f} [{r.effect_lo:+.2f}, {r.effect_hi:+.2f}]" if r.kind == "continuous"
+                else r.rates)
             for r in g.head(top).itertuples()) + ".")
     if regional.empty:
         lines.append("- No false alarm and no miss to explain (or every run of its kind has one).")
@@ -603,7 +604,8 @@ def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[s
     both, each campaign's events, the discordant runs and McNemar's p; per fault kind the detection latency of the
     runs detected by both and the median of its difference b - a with the Wilcoxon signed-rank p."""
     a, b = labels
-    rows = [f"| {r['outcome']} ({r['counted_on']}) | {_interval(r['events_a'], r['runs'], r['rate_a_lo'], r['rate_a_hi'])}"
+    rows = [f"| {r['outcome']} ({r['counted_on']}) "
+            f"| {_interval(r['events_a'], r['runs'], r['rate_a_lo'], r['rate_a_hi'])}"
             f" | {_interval(r['events_b'], r['runs'], r['rate_b_lo'], r['rate_b_hi'])} | {r['only_a']} / {r['only_b']} "
             f"| {r['p_value']:.3g} |" for _, r in outcomes[outcomes["runs"] > 0].iterrows()]
     tim = [f"| {r['fault_kind']} | {r['runs']} | {_fmt(r['median_a'])} | {_fmt(r['median_b'])} | "
@@ -617,7 +619,8 @@ def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[s
 def compare_markdown(outcomes: pd.DataFrame, times: pd.DataFrame, discordant: pd.DataFrame, labels, meta) -> str:
     """``compare.md``: the paired comparison of two campaigns of one space, with the discordant runs' ids."""
     ids = [f"- {name}: {labels[0]} only {list(g.loc[g['event_in'] == 'a', 'scenario_id'])}, {labels[1]} only "
-           f"{list(g.loc[g['event_in'] == 'b', 'scenario_id'])}" for name, g in discordant.groupby("outcome", sort=False)]
+           f"{list(g.loc[g['event_in'] == 'b', 'scenario_id'])}"
+           for name, g in discordant.groupby("outcome", sort=False)]
     intro = (f"The same runs (seed {meta.get('seed') or NA}); mcfdd {meta.get('version')}. Counts with "
              "Clopper-Pearson 95 % intervals; McNemar's exact test on the discordant runs; detection latency on the "
              "runs both detect.")

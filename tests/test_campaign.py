@@ -4,69 +4,33 @@ import concurrent.futures
 import json
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pandas as pd
 import pytest
 from scipy.stats import binomtest
 
 import mcfdd
+from helpers import CONFIGS, FAULT_FREE, SMALL, compiles, scenario_table, small_config
 from mcfdd import cli, config, io
 from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
 from mcfdd.workflows.common import load_bank, precision
-
-SMALL = """
-[campaign]
-scenarios = {n}
-design = "lhs"
-seed = 7
-chunk_size = 64
-duration_s = 4.0
-
-[evaluation]
-settle_s = 0.5
-t_detec_s = 120.0
-
-[space]
-vcas_kt = [200.0, 360.0]
-altitude_m = [0.0, 6000.0]
-noise_std_mm = [0.03, 0.07]
-hinge_scale = [0.9, 1.4]
-fault_kind = ["none", "leakage", "surface_damage", "disconnection", "jamming"]
-leakage_size = [0.1, 0.3]
-surface_damage_size = [0.3, 1.0]
-fault_onset_s = [1.0, 2.0]
-manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]
-amplitude = [0.5, 1.0]
-t_start_s = [0.2, 1.0]
-duration_s = [0.5, 1.0]
-sideslip_deg = [8.0, 14.0]
-"""
-
-
-def write_config(tmp_path, n=40, extra=""):
-    path = tmp_path / "small.toml"
-    path.write_text(SMALL.format(n=n) + extra)
-    return path
 
 
 def run_cli(*argv):
     return cli.main([str(a) for a in argv])
 
 
-def scenario_table(out: Path) -> pd.DataFrame:
-    parts = sorted((out / "scenarios").glob("part-*.parquet"))
-    return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True)
-
-
 # The shipped false-alarm campaign, shortened: 320 scenarios of 2 s = 64 Sobol samples on each of the
 # 5 manoeuvre families. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
 # 3 chunks (128, 128, 64), 256 runs 2 (256, 64). A low tau_m gives false alarms to count.
-FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
-ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.confirm_s": 0.0,
+ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
+            "fdd.loe.confirm_s": 0.0,
             "fdd.loe.excitation_floor_deg": 0.005}
 N_SHORT = 320
 
@@ -78,21 +42,11 @@ def cli_flags(overrides: dict) -> list[str]:
 @pytest.fixture(scope="module")
 def in_memory():
     """The script of issue 12: only ``import mcfdd``; two runs differing in fdd.loe.tau, one compilation."""
-    import jax.monitoring
-
-    compiles = []
-
-    def listen(event, duration_s, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiles.append(event)
-
     first = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides=SHORT), progress=False)
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        second = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING}), progress=False)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-    return first, second, len(compiles)
+    runs = []
+    count = compiles(lambda: runs.append(mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={
+        **SHORT, **ALARMING}), progress=False)))
+    return first, runs[0], count
 
 
 @pytest.fixture(scope="module")
@@ -213,7 +167,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
     harsh = (SMALL.format(n=24).replace("vcas_kt = [200.0, 360.0]", "vcas_kt = [300.0, 360.0]")
              .replace("altitude_m = [0.0, 6000.0]", "altitude_m = [0.0, 1500.0]")
              .replace("hinge_scale = [0.9, 1.4]", "hinge_scale = [1.3, 1.6]")
-             .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]', 'manoeuvre_kind = ["ol_doublet", "doublet"]')
+             .replace('manoeuvre_kind = ["doublet", "ol_doublet", "sideslip"]',
+                      'manoeuvre_kind = ["ol_doublet", "doublet"]')
              .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
              + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n"
              "detection_contrast = 0.0\n")
@@ -285,7 +240,8 @@ def test_online_reductions_equal_reductions_of_full_histories(tmp_path):
         np.testing.assert_allclose(float(raw["stall_worst_latency_signal_s"][i]), worst, atol=1e-12)
         after = t >= (onset[i] if np.isfinite(onset[i]) else settings.settle_s)
         rate, load = np.abs(np.asarray(plant.rate_m_s[i])), np.asarray(plant.load_fraction[i])
-        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf) for f in (1 + 1e-9, 1 - 1e-9)]
+        peaks = [load[after & (rate >= campaign.MOVING_RATE_M_S * f)].max(initial=-np.inf)
+                 for f in (1 + 1e-9, 1 - 1e-9)]
         assert peaks[0] * (1 - 1e-12) <= float(raw["peak_load_fraction"][i]) <= peaks[1] * (1 + 1e-12), (i, peaks)
         np.testing.assert_allclose(float(raw["peak_deflection_deg"][i]),
                                    np.degrees(np.abs(np.asarray(plant.x_m[i])[after]).max() / model.actuator.r_arm_m),
@@ -314,7 +270,8 @@ def test_zero_events_bound_is_about_three_over_n():
 
 
 def test_latin_hypercube_puts_one_point_in_each_stratum():
-    axes = [scenarios.Axis("amplitude", "range", lo=-1.0, hi=1.0), scenarios.Axis("t_start_s", "range", lo=0.0, hi=10.0),
+    axes = [scenarios.Axis("amplitude", "range", lo=-1.0, hi=1.0),
+            scenarios.Axis("t_start_s", "range", lo=0.0, hi=10.0),
             scenarios.Axis("kd_scale", "range", lo=0.7, hi=1.3)]
     n = 97
     cols, rows = scenarios.design_table(axes, n, "lhs", seed=3)
@@ -325,14 +282,16 @@ def test_latin_hypercube_puts_one_point_in_each_stratum():
 
 
 def test_designs_respect_the_mach_limit_and_grid_axes():
-    axes = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0), scenarios.Axis("altitude_m", "range", lo=0.0, hi=12000.0),
+    axes = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0),
+            scenarios.Axis("altitude_m", "range", lo=0.0, hi=12000.0),
             scenarios.Axis("fault_kind", "choices", ("none", "leakage"))]
     cols, n = scenarios.design_table(axes, 64, "sobol", seed=1, grid_axes=("fault_kind",), max_mach=0.82)
     assert n == 128
     assert list(cols["fault_kind"][:64]) == ["none"] * 64
     mach = np.asarray(scenarios.atmosphere.mach(cols["vcas_kt"] * scenarios.atmosphere.KT_TO_M_S, cols["altitude_m"]))
     assert mach.max() <= 0.82 + 1e-9
-    grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4), scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
+    grid = [scenarios.Axis("vcas_kt", "range", lo=150.0, hi=420.0, n=4),
+            scenarios.Axis("altitude_m", "values", (0.0, 12000.0))]
     cols, n = scenarios.design_table(grid, 1, "grid", seed=0, max_mach=0.82)
     assert n < 8 and set(cols["altitude_m"]) == {0.0, 12000.0}
 
@@ -340,7 +299,7 @@ def test_designs_respect_the_mach_limit_and_grid_axes():
 def test_design_does_not_depend_on_the_jax_precision(tmp_path):
     """The design (Mach limit included) is NumPy float64: the same columns whatever JAX's precision,
     so a resumed campaign's parts are checked against it without the campaign's precision context."""
-    cfg = mcfdd.load_config(write_config(tmp_path, n=80), "campaign",
+    cfg = mcfdd.load_config(small_config(tmp_path, n=80), "campaign",
                             overrides={"space.vcas_kt": [200.0, 420.0], "space.altitude_m": [0.0, 12000.0]})
     ids = np.arange(0, 80, 3)
     with precision("float32"):
@@ -374,7 +333,7 @@ print(counter.count)
 def test_campaign_setup_compiles_one_program(name):
     """From the config to the first chunk's inputs (validation, plant, hinge table, bank, design plan with its
     Mach limit, scenarios, run keys), a fresh process compiles one program: the run keys' (about 85 before)."""
-    out = subprocess.run([sys.executable, "-c", SETUP_COMPILES, str(FAULT_FREE.parent / name)], capture_output=True,
+    out = subprocess.run([sys.executable, "-c", SETUP_COMPILES, str(CONFIGS / name)], capture_output=True,
                          text=True, check=True)
     assert int(out.stdout) == 1
 
@@ -395,7 +354,7 @@ def test_true_model_brackets():
     ("", None),
 ])
 def test_space_table_errors(tmp_path, extra, message):
-    path = write_config(tmp_path, extra=extra)
+    path = small_config(tmp_path, extra=extra)
     if message is None:
         config.load(config.CampaignConfig, path)
         return
@@ -432,7 +391,7 @@ def test_grid_axis_must_vary(tmp_path):
 
 
 def test_bad_flags_are_named(tmp_path, capsys):
-    path = write_config(tmp_path, n=4)
+    path = small_config(tmp_path, n=4)
     assert run_cli("campaign", path, "--out", tmp_path / "x", "--chunk-size", 0) == 2
     assert "--chunk-size" in capsys.readouterr().err
     assert run_cli("campaign", path, "--out", tmp_path / "y", "--scenarios", -3) == 2
@@ -465,10 +424,6 @@ def test_non_finite_scenario_is_marked_and_the_batch_goes_on():
 
 
 def test_schema_command_validates_the_campaign_configs_and_rejects_a_typo(capsys):
-    import tomllib
-
-    import jsonschema
-
     assert run_cli("schema", "campaign") == 0
     validator = jsonschema.Draft202012Validator(json.loads(capsys.readouterr().out))
     folder = Path(__file__).resolve().parent.parent / "configs"

@@ -1,7 +1,7 @@
 """Mistakes a user can make end with one line naming the flag, key or file and exit status 2.
 
 The command runs in process (``mcfdd.cli.main``) except where a process must be killed. The
-campaign is the small one of ``test_campaign`` (384 scenarios of 4 s: several chunks).
+campaign is ``helpers.SMALL`` (384 scenarios of 4 s: several chunks).
 """
 
 import errno
@@ -16,15 +16,14 @@ import time
 
 import pandas as pd
 import pytest
-from test_campaign import SMALL
 
 import mcfdd
+from helpers import CONFIGS, SMALL, scenario_table
 from mcfdd import cli, io, report
 from mcfdd.analysis import build
 from mcfdd.workflows import campaign as campaign_workflow
 
 N = 384
-CONFIGS = pathlib.Path(__file__).resolve().parent.parent / "configs"
 
 
 @pytest.fixture(scope="module")
@@ -46,11 +45,6 @@ def finished(small, tmp_path_factory):
     out = tmp_path_factory.mktemp("finished") / "c"
     assert cli.main(["campaign", str(small), "--out", str(out)]) == 0
     return out
-
-
-def table(out) -> pd.DataFrame:
-    parts = sorted((out / "scenarios").glob("part-*.parquet"))
-    return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True)
 
 
 def refused(capsys, *argv) -> str:
@@ -200,7 +194,7 @@ def test_full_disk_mid_run_is_named_and_resume_completes_the_table(small, clean,
     monkeypatch.setattr(io, "write_table", write_table)
     assert [p.name for p in (out / "scenarios").glob("*.parquet")] == [calls[0].name]
     assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0
-    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+    pd.testing.assert_frame_equal(scenario_table(out), clean, check_exact=True)
 
 
 def test_changed_config_on_resume_names_every_differing_key(small, finished, capsys):
@@ -243,7 +237,7 @@ def test_damaged_part_is_named_and_run_again_on_resume(damage, small, clean, fin
     rows = pd.read_parquet(finished / "scenarios" / victim.name)["scenario_id"].to_numpy()
     assert len(simulated) == 1 and list(simulated[0]) == list(rows)
     pd.testing.assert_frame_equal(result.scenarios, clean, check_exact=True)
-    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+    pd.testing.assert_frame_equal(scenario_table(out), clean, check_exact=True)
 
 
 def test_sigkill_between_chunks_then_resume_gives_the_clean_table(small, clean, tmp_path):
@@ -264,7 +258,7 @@ def test_sigkill_between_chunks_then_resume_gives_the_clean_table(small, clean, 
     assert (out / io.LOCK_NAME).is_file()  # the lock file stays; its OS lock died with the process
     resumed = mcfdd.run_campaign(small, out=out, resume=True, progress=False)
     assert 0 < resumed.simulated < N
-    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+    pd.testing.assert_frame_equal(scenario_table(out), clean, check_exact=True)
     assert json.loads((out / "campaign.json").read_text())["campaign"]["seed"] == 7
 
 

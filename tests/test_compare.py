@@ -13,11 +13,11 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from test_campaign import write_config
 
 import mcfdd
 from mcfdd import cli, io
 from mcfdd.analysis import metrics
+from test_campaign import write_config
 
 
 def binomial_two_sided(k: int, n: int) -> float:

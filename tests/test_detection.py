@@ -13,7 +13,8 @@ CLOSED_LOOP = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip"
 
 
 def simulate(runs, duration_s, fdd=None):
-    cfg = config.parse(config.SimulateConfig, {"simulation": {"duration_s": duration_s, "seed": 3, "precision": "float64"},
+    cfg = config.parse(config.SimulateConfig, {"simulation": {"duration_s": duration_s, "seed": 3,
+                                                              "precision": "float64"},
                                                "runs": runs, "fdd": fdd or {}})
     return cfg, mcfdd.simulate(cfg, progress=False).to_pandas()
 
@@ -127,9 +128,10 @@ def test_jamming_and_stall_free_high_inputs_do_not_give_eta():
 
 def test_float32_histories_agree_with_float64():
     """The shipped precision: a deterministic run (no turbulence, no sensor noise) with a 27 % pressure
-    loss in float32 against float64 (both levels decide: detection and identification of model 5). Tolerances are a few times what such a run measured (a 27 % pressure
-    loss at 320 kt: deflection 6e-7 of its peak, evaluations 1e-5, the small theta of the 27 % model
-    8e-5); the decisions are the same at every sample."""
+    loss in float32 against float64 (both levels decide: detection and identification of model 5).
+    Tolerances are a few times what such a run measured (a 27 % pressure loss at 320 kt: deflection 6e-7
+    of its peak, evaluations 1e-5, the small theta of the 27 % model 8e-5); the decisions are the same at
+    every sample."""
     run = {"name": "b2b", "vcas_kt": 320.0, "altitude_m": 1000.0, "turbulence": "none", "noise_std_mm": 0.0,
            "fault": {"kind": "leakage", "size": 0.27, "onset_s": 1.0},
            "manoeuvre": {"kind": "bank_to_bank", "amplitude": 1.0, "t_start_s": 1.5, "duration_s": 2.0, "hold_s": 3.0,

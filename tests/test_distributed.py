@@ -17,6 +17,7 @@ import time
 import warnings
 from pathlib import Path
 
+import jax
 import numpy as np
 import pandas as pd
 import pytest
@@ -26,7 +27,7 @@ import mcfdd
 from mcfdd import cli
 from mcfdd.analysis import build, scenarios
 from mcfdd.devices import DEVICES_PER_CORE
-from mcfdd.workflows import cluster as dask_cluster
+from mcfdd.workflows import cluster as dask_cluster, common
 
 distributed = pytest.importorskip("distributed")
 
@@ -88,7 +89,7 @@ def test_two_local_workers_give_the_in_process_table(local, reference):
 
 def test_local_workers_get_their_share_of_the_cores(local):
     def devices():
-        import jax
+        import jax  # on the worker: the function is sent to it, the test module's names are not
 
         return jax.device_count()
 
@@ -192,7 +193,7 @@ def test_scheduler_and_workers_started_by_hand_give_the_in_process_table(hand_st
                                ignore_index=True))
     with distributed.Client(hand_started, timeout=30) as client:
         def devices():
-            import jax
+            import jax  # on the worker: the function is sent to it, the test module's names are not
 
             return jax.device_count()
 
@@ -286,10 +287,6 @@ def test_a_second_process_loads_the_compiled_program_from_the_cache_with_the_sam
 
 
 def test_compile_cache_off_and_back_on():
-    import jax
-
-    from mcfdd.workflows import common
-
     try:
         assert common.compile_cache("off") is None and not jax.config.jax_enable_compilation_cache
     finally:

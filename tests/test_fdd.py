@@ -17,6 +17,7 @@ import scipy.signal as sig
 from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
+from helpers import ROUNDING
 from mcfdd import io
 from mcfdd.analysis import build
 from mcfdd.config import FddConfig, LoeDetectionConfig
@@ -178,8 +179,9 @@ def test_frozen_filter_matches_transfer_function(k, k_j):
     driven by the continuous u(t) and held u_c(t) is the exact ZOH response (lsim, interp=False) of
     Q(s) [G_j; 1], connected in state space by python-control. Both obey, per sample,
     r+ = exp(-aT) r + g (u_c - u_n) with our g_d = c (e^{-kT} - e^{-k_j T}) and the exact
-    g_c = (a/k0)(k_j - k)(e^{-k_j T} - e^{-aT})/(a - k_j), both (a/k0)(k_j - k) T (1 + O(T)); so |r_d - r_c| <= |g_d - g_c| max|u_c - u| / (1 - e^{-aT}),
-    which is O(|k_j - k| T) max|u_c - u| and 0 (up to rounding) for k_j = k.
+    g_c = (a/k0)(k_j - k)(e^{-k_j T} - e^{-aT})/(a - k_j), both (a/k0)(k_j - k) T (1 + O(T)); so
+    |r_d - r_c| <= |g_d - g_c| max|u_c - u| / (1 - e^{-aT}), which is O(|k_j - k| T) max|u_c - u| and 0
+    (up to rounding) for k_j = k.
     """
     k0, a, n = 20.0, 3.0, 400
     u_c = np.cumsum(np.random.default_rng(1).normal(0.0, 2e-4, n))
@@ -275,8 +277,8 @@ def test_grid_distances_and_thresholds_match_a_loop(bank):
                             ref_d[i, j, iv, ih, ix, isg] = dij
                             if mask[iv, ih, ix, isg]:
                                 ref[i, j] = min(ref[i, j], dij)
-    np.testing.assert_allclose(d, ref_d, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(d_min, ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(d, ref_d, **ROUNDING)
+    np.testing.assert_allclose(d_min, ref, **ROUNDING)
     np.testing.assert_allclose(tau, [min(ref[i, j] for j in range(n) if j != i) for i in range(n)], rtol=1e-12)
     assert np.all(tau > 0)
 
@@ -325,12 +327,12 @@ def test_evaluator_parameters_each_matter():
     more_alpha = np.asarray(run_evaluator(base._replace(alpha=1.5), r))
     np.testing.assert_allclose(more_alpha - theta, np.abs(r), rtol=1e-12)
     more_beta = np.asarray(run_evaluator(base._replace(beta=3.0), r))
-    np.testing.assert_allclose(more_beta - 0.5 * np.abs(r), 3.0 * (theta - 0.5 * np.abs(r)), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(more_beta - 0.5 * np.abs(r), 3.0 * (theta - 0.5 * np.abs(r)), **ROUNDING)
 
     t = np.arange(2000) * DT_S
     for gamma in (0.5, 2.0):
         xi = np.asarray(run_evaluator(evaluator.NarendraParams(0.0, 1.0, gamma), np.full(t.size, 0.2)))
-        np.testing.assert_allclose(xi, 0.2 / gamma * -np.expm1(-gamma * t), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(xi, 0.2 / gamma * -np.expm1(-gamma * t), **ROUNDING)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -462,7 +464,8 @@ def test_signature_and_threshold_direction():
 
 def test_scheduled_thresholds_follow_eq16_at_the_current_point(bank):
     """tau_i(rho) = max(tau, f * min_j ||G_j - G_i||_inf (k_i + k_j) / k0_i) with the gains of eq. (4) at
-    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step against numpy, and f = 0 is constant tau."""
+    the sample's u and direction (the sign of the low-passed u_c - u before it): the signature of system.step
+    against numpy, and f = 0 is constant tau."""
     n = 400
     u_c = smooth_command(n)
     gain = eq4_gains(bank, VCAS_M_S, ALT_M)
@@ -502,7 +505,7 @@ RULES = stall.SignalRules(rate_min_m_s=2.0 * DEG_M, command_min_m=10.0 * DEG_M, 
 @jax.jit
 def run_signal(rules, iota, u_c, u):
     """stall.signal_step over a trace (n,) sampled at DT_S -> eta (n,)."""
-    t = jnp.arange(iota.shape[0]) * DT_S
+    t = jnp.arange(iota.shape[0], dtype=float) * DT_S
 
     def body(state, inp):
         i, c, m, tk = inp
@@ -625,7 +628,7 @@ def fdd_on_lpv_model(params, model, u_c):
     -> detected ids."""
     fdd_on_lpv_model.traces += 1
     bank = params.loe.bank
-    t = jnp.arange(u_c.shape[0]) * DT_S
+    t = jnp.arange(u_c.shape[0], dtype=float) * DT_S
 
     def body(carry, inp):
         u, state = carry
@@ -676,8 +679,8 @@ def test_load_weighted_excitation(bank):
     outs = {}
     floor_deg = 0.9  # between the weighted (0.78 deg) and unweighted (1.03 deg) peaks of this command
     for f in (0.0, 0.15):
-        params = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f,
-                                                                   excitation_floor_deg=floor_deg)), bank, r_arm_m=R_ARM_M)
+        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_load_fraction=f, excitation_floor_deg=floor_deg)
+        params = build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
 
         def body(state, inp):
             c, m, t = inp
@@ -846,7 +849,8 @@ def test_noise_estimate_is_the_sensor_noise_rms(bank, sigma_mm):
         def body(state, inp):
             c, m, t_n = inp
             return system.step(params, state, c, m, VCAS_M_S, ALT_M, t_n, DT_S)
-        return jax.tree.map(np.asarray, jax.jit(lambda: jax.lax.scan(body, system.init(params, u[0]), (u_c, u, t))[1])())
+        run = jax.jit(lambda: jax.lax.scan(body, system.init(params, u[0]), (u_c, u, t))[1])
+        return jax.tree.map(np.asarray, run())
 
     out = run(x[:-1] + noise)
     np.testing.assert_allclose(out.noise_rms, noise_reference(x[:-1] + noise, 0.02), rtol=1e-9, atol=1e-15)

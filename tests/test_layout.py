@@ -9,7 +9,8 @@ import subprocess
 import sys
 
 import pandas as pd
-from test_campaign import SMALL
+
+from helpers import SMALL, scenario_table
 
 
 def campaign_table(cfg, out, devices: int, chunk: int, padded: int):
@@ -19,8 +20,7 @@ def campaign_table(cfg, out, devices: int, chunk: int, padded: int):
                            "--chunk-size", str(chunk)], env=env, capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stderr
     assert f"chunk(s) of {padded}" in proc.stderr  # padded to 64 x devices: the device count reached JAX
-    parts = sorted((out / "scenarios").glob("part-*.parquet"))
-    return pd.concat([pd.read_parquet(p) for p in parts]).sort_values("scenario_id", ignore_index=True), len(parts)
+    return scenario_table(out), len(list((out / "scenarios").glob("part-*.parquet")))
 
 
 def test_scenario_tables_are_identical_on_1_2_and_3_devices(tmp_path):

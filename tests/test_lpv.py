@@ -72,7 +72,7 @@ def test_fit_recovers_known_lpv_coefficients(small, model, training):
     """Responses of an LPV bank with known coefficients are fitted back to those coefficients."""
     start, free = lpv_fit.initial_bank(model, build.lpv_nus(small), *build.lpv_training_points(small.envelope, 0.82))
     offset = np.array([[1.0, 0.3, -0.2], [0.4, -0.2, 0.1], [-0.5, 0.3, 0.2], [1.0, -0.6, 0.3]])
-    known = start._replace(coef=start.coef + jnp.asarray(offset) * jnp.arange(1, 7)[:, None, None] / 6.0)
+    known = start._replace(coef=start.coef + jnp.asarray(offset) * jnp.arange(1.0, 7.0)[:, None, None] / 6.0)
     data = training._replace(x_m=lpv_fit.responses(known, training, small.runs.dt_s))
     free = free & (np.arange(6) != 2)
     cfg = config.replace(small, {"optimiser.iterations": 120})
@@ -253,6 +253,10 @@ def test_bad_lpv_fit_config_names_the_key(edit, key):
 
 def test_lpv_fit_config_defaults_are_the_paper_models():
     cfg = config.parse(config.LpvFitConfig, _base())
-    assert [(m.name, (m.nu1, m.nu2)) for m in cfg.models] == [(n, nu) for n, nu in lpv.PAPER_MODELS]
+    # Section 6.1: fault-free, 100 / 67 / 34 % loss of surface effectiveness, 15 / 27 % pressure loss
+    assert [(m.nu1, m.nu2) for m in cfg.models] == [(1.0, 1.0), (1.0, 0.0), (1.0, 0.33), (1.0, 0.66), (0.85, 1.0),
+                                                    (0.73, 1.0)]
+    assert [m.name for m in cfg.models] == ["fault-free", "surface-loss-100", "surface-loss-67", "surface-loss-34",
+                                            "pressure-loss-15", "pressure-loss-27"]
     m = build.lpv_manoeuvre_params(cfg, "training")
     np.testing.assert_allclose(m.amplitude, [0.2, -0.2])

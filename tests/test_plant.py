@@ -17,6 +17,7 @@ import scipy.linalg
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from helpers import ROUNDING
 from mcfdd.analysis import batch, simulate
 from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres, turbulence
 
@@ -145,7 +146,7 @@ def _actuator_scan(params, fault, delta_grid, load_slice, commands, substeps):
         k, u_c = kc
         return actuator.step(params, fault, delta_grid, load_slice, state, u_c, k * DT_S, DT_S, substeps)
 
-    out = jax.lax.scan(body, actuator.init(params, 0.0), (jnp.arange(commands.shape[0]), commands))[1]
+    out = jax.lax.scan(body, actuator.init(params, 0.0), (jnp.arange(commands.shape[0], dtype=float), commands))[1]
     return out.x_m, out.stall
 
 
@@ -225,7 +226,8 @@ def _implicit_reference(fault, delta_grid, load_slice, commands):
 
 
 @pytest.mark.parametrize("fault", [actuator.ActuatorFault(), actuator.ActuatorFault(nu1=0.73, onset_s=0.0),
-                                   actuator.ActuatorFault(nu2=0.0, onset_s=0.0)], ids=["healthy", "leakage", "disconnected"])
+                                   actuator.ActuatorFault(nu2=0.0, onset_s=0.0)],
+                         ids=["healthy", "leakage", "disconnected"])
 def test_saturated_slews_at_low_dynamic_pressure_match_implicit_reference(model, fault):
     """Full-deflection steps and a 2 Hz, 20 deg sine (faster than the rod) at 142 kt and 10 km.
 
@@ -356,7 +358,7 @@ def test_dryden_discretisation_matches_scipy(level, altitude_m):
     phi = van_loan[3:, 3:].T
     q_d = phi @ van_loan[:3, 3:]
     p_stat = scipy.linalg.solve_continuous_lyapunov(a, -qbb)
-    np.testing.assert_allclose(np.asarray(params.phi), scipy.linalg.expm(a * DT_S), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(params.phi), scipy.linalg.expm(a * DT_S), **ROUNDING)
     chol_q, chol_p = np.asarray(params.chol_q), np.asarray(params.chol_p)
     np.testing.assert_allclose(chol_q @ chol_q.T, q_d, rtol=1e-9, atol=1e-12 * np.abs(q_d).max())
     np.testing.assert_allclose(chol_p @ chol_p.T, p_stat, rtol=1e-9, atol=1e-12 * np.abs(p_stat).max())

@@ -15,9 +15,9 @@ import numpy as np
 import openturns as ot
 import pytest
 from scipy.stats import norm
-from test_rare import PROBLEMS
 
 from mcfdd.analysis import rare
+from test_rare import PROBLEMS
 
 
 def ot_event(problem):

@@ -5,9 +5,15 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
+from scipy.integrate import solve_ivp
 
-from mcfdd.plant import atmosphere, rcam
+from mcfdd import cli, config
+from mcfdd.analysis import batch, build, campaign, scenarios, simulate
+from mcfdd.fdd import system
+from mcfdd.plant import atmosphere, closed_loop, rcam
+from mcfdd.workflows.common import load_bank
 
 P = rcam.RcamParams()
 APPROACH_TAS = 80.0
@@ -168,8 +174,6 @@ def test_short_period_and_dutch_roll_at_the_approach_point_match_the_independent
 
 
 def test_runge_kutta_step_matches_solve_ivp():
-    from scipy.integrate import solve_ivp
-
     rng = np.random.default_rng(4)
     x, u = _random_point(rng)
     x[2] = 3.0
@@ -215,9 +219,6 @@ CLOSED_LOOP_RUNS = {
 
 @pytest.fixture(scope="module")
 def closed_loop_runs():
-    from mcfdd.analysis import batch, scenarios, simulate
-    from mcfdd.plant import closed_loop
-
     model = closed_loop.build_model(vcas_range_m_s=(40.0, 220.0), grid=(19, 14, 11), aircraft_model="rcam")
     rows = list(CLOSED_LOOP_RUNS.values())
     cols = {k: np.array([r.get(k, v) for r in rows]) for k, v in scenarios.DEFAULTS.items()}
@@ -279,10 +280,6 @@ def test_heading_change_captures_the_new_heading(closed_loop_runs):
 
 def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules_on_it():
     """run_batch's Vcas/altitude ranges against the full histories of the same rcam runs."""
-    from mcfdd import config
-    from mcfdd.analysis import batch, build, campaign, scenarios, simulate
-    from mcfdd.workflows.common import load_bank
-
     cfg = config.parse(config.CampaignConfig, {
         "campaign": {"scenarios": 3, "duration_s": 12.0, "design": "random"},
         "plant": {"aircraft": {"model": "rcam"}},
@@ -306,8 +303,6 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
     np.testing.assert_array_equal(np.asarray(raw["altitude_max_m"]), h.max(axis=1))
     assert (v.max(axis=1) - v.min(axis=1)).min() > 0.5 and (h.max(axis=1) - h.min(axis=1)).min() > 0.5
     # the FDD's hinge-load estimate follows the measured flight point, not the initial one
-    from mcfdd.fdd import system
-
     i = int(np.argmax(h.max(axis=1) - h.min(axis=1)))
     moving = frozen = system.init(fdd, 0.0)
     for k in range(1200):
@@ -326,17 +321,11 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
     ({"plant": {"aircraft": {"model": "rcam"}}, "space": {"mass_scale": [0.5, 1.0]}}, "space.mass_scale"),
 ])
 def test_bad_full_aircraft_settings_are_named(data, message):
-    from mcfdd import config
-
     with pytest.raises(config.ConfigError, match=message):
         config.parse(config.CampaignConfig, data)
 
 
 def test_simulate_writes_the_flight_signals_of_rcam_runs(tmp_path):
-    import pandas as pd
-
-    from mcfdd import cli
-
     path = tmp_path / "rcam.toml"
     path.write_text('[simulation]\nduration_s = 3.0\nprecision = "float64"\n\n[plant.aircraft]\nmodel = "rcam"\n\n'
                     '[[runs]]\nname = "speed"\nvcas_kt = 180.0\naltitude_m = 2000.0\nturbulence = "none"\n'
@@ -351,8 +340,6 @@ def test_simulate_writes_the_flight_signals_of_rcam_runs(tmp_path):
 
 
 def test_roll_axis_refuses_a_full_aircraft_manoeuvre_in_one_line(tmp_path, capsys):
-    from mcfdd import cli
-
     path = tmp_path / "roll.toml"
     path.write_text('[[runs]]\nname = "turn"\nmanoeuvre = { kind = "coordinated_turn", bank_deg = 30.0 }\n')
     assert cli.main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 2
@@ -362,7 +349,5 @@ def test_roll_axis_refuses_a_full_aircraft_manoeuvre_in_one_line(tmp_path, capsy
 
 
 def test_tuning_refuses_the_full_aircraft():
-    from mcfdd import config
-
     with pytest.raises(config.ConfigError, match="plant.aircraft.model.*roll_axis"):
         config.parse(config.TuneConfig, {"plant": {"aircraft": {"model": "rcam"}}, "validation": {"seed": 1}})

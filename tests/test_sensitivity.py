@@ -13,8 +13,7 @@ from scipy import stats
 
 import mcfdd
 from mcfdd import cli, config, io
-from mcfdd.analysis import build
-from mcfdd.analysis import sensitivity as sens
+from mcfdd.analysis import build, sensitivity as sens
 from mcfdd.workflows import sensitivity as sens_wf
 from mcfdd.workflows.sensitivity import tables
 
@@ -375,7 +374,8 @@ def test_design_of_a_shipped_space_maps_its_unit_rows_to_columns_and_strata():
     axis = cfg.space.axis("kci_scale")
     i = d.factors.index("kci_scale")
     np.testing.assert_allclose(cols["kci_scale"], axis.lo + d.unit[block * 8 + base, i] * (axis.hi - axis.lo))
-    assert (np.asarray(cols["fault_kind"]) == np.array(["none", "leakage", "surface_damage", "disconnection"])[cell]).all()
+    kinds = np.array(["none", "leakage", "surface_damage", "disconnection"])
+    assert (np.asarray(cols["fault_kind"]) == kinds[cell]).all()
     noise = block == 2 + d.factors.index("noise_path")
     np.testing.assert_array_equal(d.plan.keys[noise], cell[noise] * 16 + 8 + base[noise])  # B's noise path
     np.testing.assert_array_equal(d.plan.keys[block == 0], cell[block == 0] * 16 + base[block == 0])

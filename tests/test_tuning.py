@@ -9,6 +9,7 @@ gap; no recompilation for new FDD numbers; configuration errors naming their key
 """
 
 import argparse
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,11 +18,10 @@ import pytest
 from scipy.special import logsumexp
 
 from mcfdd import cli, config
+from mcfdd.analysis import build, campaign, scenarios, simulate, tuning, worst_case as wc
+from mcfdd.plant import atmosphere
 from mcfdd.workflows.common import CompileCounter, load_bank
 from mcfdd.workflows.tune import training_set
-from mcfdd.analysis import build, campaign, scenarios, simulate, tuning
-from mcfdd.analysis import worst_case as wc
-from mcfdd.plant import atmosphere
 
 DT_S = 0.01
 # Open-loop doublets at one flight point without turbulence, below any stall load. The stall
@@ -91,7 +91,7 @@ def make_problem(cfg: config.CampaignConfig, n_steps: int, detector="stall", bou
     model = build.plant_model(cfg.plant)
     bank, _ = load_bank(cfg.fdd, np.float64)
     r_arm = model.actuator.r_arm_m
-    space = wc.SearchSpace.from_axes(cfg.space.axes, cfg.plant.aircraft.max_mach, config.SIZE_COLUMNS)
+    space = wc.SearchSpace.from_axes(cfg.space.axes, cfg.plant.aircraft.max_mach)
     return wc.Problem(model, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm), space,
                       np.asarray(bank.nu), detector, bound, 0.05, n_steps, DT_S, 4, np.float64)
 
@@ -380,8 +380,6 @@ def test_bad_search_and_tune_keys_are_named(tmp_path, cls, text, key):
 
 
 def test_shipped_configs_parse():
-    from pathlib import Path
-
     folder = Path(__file__).resolve().parents[1] / "configs"
     for name, cls in (("worst_case_stall.toml", config.WorstCaseConfig),
                       ("worst_case_stall_detect.toml", config.WorstCaseConfig),

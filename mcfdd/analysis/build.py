@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from mcfdd import config
+from mcfdd import columns, config
 from mcfdd.analysis import batch, campaign, lpv_fit, metrics, scenarios, worst_case
 from mcfdd.fdd import evaluator, lpv, stall, system
 from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres
@@ -53,8 +53,8 @@ def plant_model(plant_cfg: config.PlantConfig) -> closed_loop.PlantModel:
     return closed_loop.build_model(
         _actuator_params(plant_cfg.actuator), _aircraft_params(plant_cfg.aircraft),
         _roll_law_params(plant_cfg.control_law), _hinge_surface(plant_cfg.hinge),
-        vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in config.VCAS_RANGE_KT),
-        altitude_range_m=config.ALTITUDE_RANGE_M, aircraft_model=plant_cfg.aircraft.model)
+        vcas_range_m_s=tuple(v * atmosphere.KT_TO_M_S for v in columns.VCAS_RANGE_KT),
+        altitude_range_m=columns.ALTITUDE_RANGE_M, aircraft_model=plant_cfg.aircraft.model)
 
 
 def evaluator_params(c: config.EvaluatorConfig) -> evaluator.NarendraParams:
@@ -95,19 +95,9 @@ def settings(eval_cfg: config.EvaluationConfig, r_arm_m: float) -> campaign.Sett
 
 
 def run_columns(run: config.RunConfig) -> dict:
-    """The run as a row of a scenario table (see :mod:`mcfdd.analysis.scenarios`)."""
-    m = run.manoeuvre
-    return {
-        "vcas_kt": run.vcas_kt, "altitude_m": run.altitude_m, "supply_pressure_scale": run.supply_pressure_scale,
-        "kci_scale": run.kci_scale, "kd_scale": run.kd_scale, "hinge_scale": run.hinge_scale,
-        "roll_inertia_scale": run.roll_inertia_scale, "mass_scale": run.mass_scale, "noise_std_mm": run.noise_std_mm,
-        "turbulence": run.turbulence, "fault_kind": run.fault.kind, "fault_size": run.fault.size,
-        "fault_onset_s": run.fault.onset_s, "manoeuvre_kind": m.kind, "amplitude": m.amplitude,
-        "t_start_s": m.t_start_s, "duration_s": m.duration_s, "hold_s": m.hold_s, "ramp_s": m.ramp_s,
-        "freq_lo_hz": m.freq_lo_hz, "freq_hi_hz": m.freq_hi_hz, "sideslip_deg": m.sideslip_deg,
-        "fpa_deg": m.fpa_deg, "heading_change_deg": m.heading_change_deg, "bank_deg": m.bank_deg,
-        "delta_vcas_kt": m.delta_vcas_kt,
-    }
+    """The run as a row of a scenario table: each column from its run key (:attr:`mcfdd.columns.Column.owner`)."""
+    sections = {"run": run, "fault": run.fault, "manoeuvre": run.manoeuvre}
+    return {c.name: getattr(sections[c.owner[0]], c.owner[1]) for c in columns.TABLE}
 
 
 def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
@@ -123,18 +113,6 @@ def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray,
     return table, names, family, table["fault_size"]
 
 
-def _fault_size(cfg: config.CampaignConfig, cols: dict) -> dict:
-    """``cols`` with the per-fault size columns of the space merged into one ``fault_size`` column."""
-    kind = np.asarray(cols["fault_kind"])
-    size = np.zeros(len(kind))
-    for column, fault in config.SIZE_COLUMNS.items():
-        if column in cols:
-            size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
-    if any(c in {a.name for a in cfg.space.axes} for c in config.SIZE_COLUMNS):
-        cols["fault_size"] = size
-    return cols
-
-
 def _samples(cfg: config.CampaignConfig) -> int:
     """Samples per grid cell: ``campaign.scenarios`` is the total over the cells."""
     return cfg.campaign.scenarios // cfg.grid_cells()[1]
@@ -145,7 +123,7 @@ def design(cfg: config.CampaignConfig) -> tuple[dict, int]:
     c = cfg.campaign
     cols, n = scenarios.design_table(list(cfg.space.axes), _samples(cfg), c.design, c.seed, c.grid,
                                      cfg.plant.aircraft.max_mach)
-    return _fault_size(cfg, cols), n
+    return scenarios.merge_fault_sizes(cols), n
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,7 +165,7 @@ def design_plan(cfg: config.CampaignConfig, whole: np.ndarray | None = None, key
         whole = scenarios.whole_sample(axes, samples, c.design, c.seed, c.grid)
     cols, keep = scenarios.design_rows(axes, samples, c.design, c.seed, np.arange(cells * per_cell), c.grid,
                                        cfg.plant.aircraft.max_mach, whole)
-    cols = _fault_size(cfg, {k: np.asarray(v)[keep] for k, v in cols.items()})
+    cols = scenarios.merge_fault_sizes({k: np.asarray(v)[keep] for k, v in cols.items()})
     kinds = batch.kinds_in([manoeuvres.KIND_CODE[k] for k in np.unique(cols["manoeuvre_kind"])])
     return DesignPlan(int(keep.sum()), None if keep.all() else np.flatnonzero(keep), whole,
                       metrics.uncertainty_ranges(cols), kinds, None if keys is None else np.asarray(keys)[keep])
@@ -204,12 +182,12 @@ def design_chunk(cfg: config.CampaignConfig, plan: DesignPlan, ids) -> dict:
     cols, _ = scenarios.design_rows(list(cfg.space.axes), _samples(cfg), c.design, c.seed,
                                     ids if plan.rows is None else plan.rows[ids], c.grid, cfg.plant.aircraft.max_mach,
                                     plan.whole)
-    return _fault_size(cfg, cols)
+    return scenarios.merge_fault_sizes(cols)
 
 
 def search_space(cfg: config.WorstCaseConfig) -> worst_case.SearchSpace:
     """The scenario space of a worst-case search, split into continuous and categorical axes."""
-    return worst_case.SearchSpace.from_axes(cfg.space.axes, cfg.plant.aircraft.max_mach, config.SIZE_COLUMNS)
+    return worst_case.SearchSpace.from_axes(cfg.space.axes, cfg.plant.aircraft.max_mach)
 
 
 def lpv_training_points(envelope: config.LpvEnvelopeConfig, max_mach: float):
@@ -234,8 +212,5 @@ def lpv_nus(cfg: config.LpvFitConfig) -> np.ndarray:
 def lpv_manoeuvre_params(cfg: config.LpvFitConfig, split: str, dtype=np.float64) -> manoeuvres.ManoeuvreParams:
     """The manoeuvres of ``cfg.manoeuvres(split)`` as one pytree with a leading axis, SI units."""
     listed = cfg.manoeuvres(split)
-    cols = {"manoeuvre_kind": np.array([m.kind for m in listed])}
-    for name in config.ManoeuvreConfig.model_fields:
-        if name != "kind":
-            cols[name] = np.array([getattr(m, name) for m in listed])
+    cols = {c.name: np.array([getattr(m, c.owner[1]) for m in listed]) for c in columns.owned_by("manoeuvre")}
     return scenarios.to_scenario(cols, dtype).manoeuvre

@@ -42,10 +42,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcfdd.analysis.simulate import scan_steps
+from mcfdd.analysis.simulate import sample_time, scan_steps
 from mcfdd.compute import ONE, once
 from mcfdd.fdd import decision, system
 from mcfdd.plant import closed_loop
+
 
 class Status(enum.IntEnum):
     """Scenario status code, the ``status`` column of a campaign table; ``.meaning`` says what it means."""
@@ -297,7 +298,7 @@ def step_one(params: closed_loop.RunParams, fdd_params: system.FddParams, settin
              kinds: tuple[int, ...]):
     """Sample k of one scenario: plant, FDD and reductions. Returns (new carry, plant outputs, FDD outputs)."""
     plant_state, fdd_state, red = carry
-    t = k * dt_s
+    t = sample_time(k, dt_s)
     plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
     fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
                                 t, dt_s)

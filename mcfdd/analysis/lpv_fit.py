@@ -37,6 +37,8 @@ import numpy as np
 import optax
 
 from mcfdd.analysis import batch
+from mcfdd.analysis.simulate import sample_time
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import lpv, thresholds
 from mcfdd.plant import actuator, atmosphere, closed_loop, hinge, manoeuvres
 
@@ -155,7 +157,7 @@ class FitProblem(NamedTuple):
 
 def commands(manoeuvre: manoeuvres.ManoeuvreParams, x_max_m, n_steps: int, dt_s: float, kinds: tuple[int, ...]):
     """Rod commands (M, T) of open-loop profiles (leaves of ``manoeuvre`` with a leading axis M)."""
-    t = jnp.arange(n_steps) * dt_s
+    t = sample_time(jnp.arange(n_steps), dt_s)
     profile = jax.vmap(lambda m: manoeuvres.inputs(m, t, kinds).command)(manoeuvre)
     return jnp.clip(profile, -1.0, 1.0) * x_max_m
 
@@ -168,7 +170,8 @@ def nonlinear_response(model: closed_loop.PlantModel, nu, vcas_m_s, altitude_m, 
 
     def body(state, inputs):
         k, u_c = inputs
-        state, out = actuator.step(act, fault, model.table.delta_rad, load, state, u_c, k * dt_s, dt_s, substeps)
+        state, out = actuator.step(act, fault, model.table.delta_rad, load, state, u_c, sample_time(k, dt_s), dt_s,
+                                   substeps)
         return state, (out.x_m, out.dp_avail_norm)
 
     n = u_c_m.shape[0]
@@ -237,7 +240,7 @@ def _losses(coef, bank: lpv.GainBank, problem: FitProblem, weight, dt_s: float):
     return jnp.sum(weight * jnp.mean(e**2, axis=-1), axis=1) / jnp.maximum(jnp.sum(weight, axis=1), 1.0)
 
 
-_ADAM = optax.scale_by_adam()
+_ADAM = standard_promotion(optax.scale_by_adam())
 
 
 @partial(jax.jit, static_argnames="dt_s")

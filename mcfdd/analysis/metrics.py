@@ -301,5 +301,7 @@ def paired_differences(x_a, x_b) -> dict:
         p = 1.0
     else:
         p = float(stats.wilcoxon(nonzero).pvalue)
-    med = (lambda v: float(np.median(v)) if v.size else float("nan"))
+    def med(v):
+        return float(np.median(v)) if v.size else float("nan")
+
     return {"runs": d.size, "median_a": med(a), "median_b": med(b), "median_difference": med(d), "p_value": p}

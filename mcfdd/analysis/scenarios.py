@@ -1,16 +1,17 @@
-"""Scenario spaces, sampling designs and the column vocabulary of scenario tables.
+"""Scenario spaces, sampling designs and the conversion of scenario tables to traced scenarios.
 
 A scenario is one row of a table whose columns carry their unit in the name (``vcas_kt``,
-``fault_onset_s``). :func:`to_scenario` turns columns (scalars or arrays) into the traced
-:class:`~mcfdd.plant.closed_loop.Scenario` pytree, so single runs and campaigns share one
-conversion.
+``fault_onset_s``); the columns are declared once, in :mod:`mcfdd.columns`. :func:`to_scenario`
+turns columns (scalars or arrays) into the traced :class:`~mcfdd.plant.closed_loop.Scenario`
+pytree, so single runs, campaigns and searches share one conversion.
 
 A space has one :class:`mcfdd.config.Axis` per column: a constant, a continuous range, discrete values or
-named choices. A design maps the unit hypercube to the axes: full grid, random, Latin hypercube
-or Sobol (``scipy.stats.qmc``), or a grid over some axes crossed with samples over the others.
-The flight envelope is respected by construction: Vcas is drawn between its lower bound and the
-smaller of its upper bound and the Mach-limit speed at the drawn altitude (grid points above the
-limit are dropped), which keeps the stratification of the design in the unit cube.
+named choices (:func:`grid_values` and :func:`from_unit` sample it). A design maps the unit hypercube
+to the axes: full grid, random, Latin hypercube or Sobol (``scipy.stats.qmc``), or a grid over some
+axes crossed with samples over the others. The flight envelope is respected by construction: Vcas
+is drawn between its lower bound and the smaller of its upper bound and the Mach-limit speed at
+the drawn altitude (grid points above the limit are dropped), which keeps the stratification of
+the design in the unit cube.
 """
 
 from __future__ import annotations
@@ -20,17 +21,25 @@ import math
 import numpy as np
 from scipy.stats import qmc
 
-from mcfdd.config import DESIGNS, FAULT_KINDS, PARAMETRIC, Axis
-from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres, turbulence
+from mcfdd import columns
+from mcfdd.columns import DEFAULTS, PARAMETRIC, SIZE_COLUMNS
+from mcfdd.config import DESIGNS, Axis
+from mcfdd.plant import actuator, atmosphere, closed_loop, manoeuvres
 
-DEFAULTS = {
-    "vcas_kt": 250.0, "altitude_m": 3000.0, "supply_pressure_scale": 1.0, "kci_scale": 1.0, "kd_scale": 1.0,
-    "hinge_scale": 1.0, "roll_inertia_scale": 1.0, "mass_scale": 1.0, "noise_std_mm": 0.05, "turbulence": "light",
-    "fault_kind": "none", "fault_size": 0.0, "fault_onset_s": 10.0, "manoeuvre_kind": "quiet", "amplitude": 0.0,
-    "t_start_s": 5.0, "duration_s": 2.0, "hold_s": 2.0, "ramp_s": 0.3, "freq_lo_hz": 0.1, "freq_hi_hz": 2.0,
-    "sideslip_deg": 0.0, "fpa_deg": 0.0, "heading_change_deg": 0.0, "bank_deg": 0.0, "delta_vcas_kt": 0.0,
-}
-CATEGORICAL = {"turbulence": tuple(turbulence.LEVELS), "fault_kind": FAULT_KINDS, "manoeuvre_kind": manoeuvres.KINDS}
+
+def grid_values(axis: Axis) -> tuple:
+    """The axis's values on a grid: ``n`` points over a range, else its values."""
+    if axis.kind == "range":
+        return tuple(np.linspace(axis.lo, axis.hi, axis.n)) if axis.n > 1 else (axis.lo,)
+    return axis.values
+
+
+def from_unit(axis: Axis, u):
+    """Map uniform numbers in [0, 1) to the axis's values (uniform over a range, equal shares of the values)."""
+    if axis.kind == "range":
+        return axis.lo + u * (axis.hi - axis.lo)
+    options = np.asarray(axis.values)
+    return options[np.minimum((u * len(options)).astype(int), len(options) - 1)]
 
 
 def fault_nu(kind, size):
@@ -42,43 +51,61 @@ def fault_nu(kind, size):
     return nu1, nu2
 
 
+def fault_leaves(kind, size, onset, dtype) -> actuator.ActuatorFault:
+    """The fault of rows of kind names, sizes and onsets (s): (nu1, nu2), the parametric and the jam onset."""
+    kind = np.asarray(kind)
+    nu1, nu2 = fault_nu(kind, size)
+    onset = np.asarray(onset).astype(float)
+    return actuator.ActuatorFault(
+        nu1=nu1.astype(dtype), nu2=nu2.astype(dtype),
+        onset_s=np.where(np.isin(kind, PARAMETRIC), onset, np.inf).astype(dtype),
+        jam_onset_s=np.where(kind == "jamming", onset, np.inf).astype(dtype))
+
+
+def _leaf(column: columns.Column, value, dtype):
+    """A column's values as its leaf: the code of each name, or the number in SI units."""
+    if column.codes:
+        code = dict(zip(column.choices, column.codes, strict=True))
+        integer = isinstance(column.codes[0], int)
+        leaf = np.vectorize(code.__getitem__, otypes=[np.int32 if integer else float])(value)
+        return leaf if integer else leaf.astype(dtype)
+    return (value if column.si == 1.0 else value * column.si).astype(dtype)
+
+
 def to_scenario(cols: dict, dtype=np.float32) -> closed_loop.Scenario:
     """Scenario pytree (SI units) from table columns; missing columns take :data:`DEFAULTS`.
 
-    Columns are scalars or arrays of one shape; the leaves of the result have that shape.
+    Columns are scalars or arrays of one shape; the leaves of the result have that shape. Each
+    column sets its registry leaf (:attr:`mcfdd.columns.Column.leaf`); the fault columns set the
+    fault together (:func:`fault_leaves`).
     """
     shape = np.broadcast_shapes(*(np.shape(v) for v in cols.values()))
     c = {k: np.broadcast_to(np.asarray(cols.get(k, v)), shape) for k, v in DEFAULTS.items()}
     f = np.dtype(dtype)
-    kind = c["fault_kind"]
-    nu1, nu2 = fault_nu(kind, c["fault_size"])
-    onset = c["fault_onset_s"].astype(float)
-    parametric = np.isin(kind, PARAMETRIC)
-    level = np.vectorize(turbulence.LEVELS.__getitem__, otypes=[float])(c["turbulence"])
-    code = np.vectorize(manoeuvres.KIND_CODE.__getitem__, otypes=[np.int32])(c["manoeuvre_kind"])
+    leaves = {col.leaf: _leaf(col, c[col.name], f) for col in columns.TABLE if col.leaf != "fault"}
+    manoeuvre = {k.partition(".")[2]: v for k, v in leaves.items() if k.startswith("manoeuvre.")}
     return closed_loop.Scenario(
-        vcas_m_s=(c["vcas_kt"] * atmosphere.KT_TO_M_S).astype(f),
-        altitude_m=c["altitude_m"].astype(f),
-        supply_pressure_scale=c["supply_pressure_scale"].astype(f),
-        kci_scale=c["kci_scale"].astype(f),
-        kd_scale=c["kd_scale"].astype(f),
-        hinge_scale=c["hinge_scale"].astype(f),
-        roll_inertia_scale=c["roll_inertia_scale"].astype(f),
-        mass_scale=c["mass_scale"].astype(f),
-        noise_std_m=(c["noise_std_mm"] * 1e-3).astype(f),
-        turbulence_level=level.astype(f),
-        fault=actuator.ActuatorFault(
-            nu1=nu1.astype(f), nu2=nu2.astype(f), onset_s=np.where(parametric, onset, np.inf).astype(f),
-            jam_onset_s=np.where(kind == "jamming", onset, np.inf).astype(f)),
-        manoeuvre=manoeuvres.ManoeuvreParams(
-            kind=code, amplitude=c["amplitude"].astype(f), t_start_s=c["t_start_s"].astype(f),
-            duration_s=c["duration_s"].astype(f), hold_s=c["hold_s"].astype(f), ramp_s=c["ramp_s"].astype(f),
-            freq_lo_hz=c["freq_lo_hz"].astype(f), freq_hi_hz=c["freq_hi_hz"].astype(f),
-            sideslip_rad=np.radians(c["sideslip_deg"]).astype(f), fpa_rad=np.radians(c["fpa_deg"]).astype(f),
-            heading_change_rad=np.radians(c["heading_change_deg"]).astype(f),
-            bank_rad=np.radians(c["bank_deg"]).astype(f),
-            delta_vcas_m_s=(c["delta_vcas_kt"] * atmosphere.KT_TO_M_S).astype(f)),
-    )
+        **{k: v for k, v in leaves.items() if "." not in k},
+        fault=fault_leaves(c["fault_kind"], c["fault_size"], c["fault_onset_s"], f),
+        manoeuvre=manoeuvres.ManoeuvreParams(**manoeuvre))
+
+
+def merge_fault_sizes(cols: dict) -> dict:
+    """``cols`` with its per-kind size columns (``leakage_size``, ...) merged into one ``fault_size``.
+
+    A row takes the size column of its fault kind (0 for the other kinds); ``cols`` is returned
+    unchanged when it holds no size column.
+    """
+    present = [c for c in SIZE_COLUMNS if c in cols]
+    if not present:
+        return cols
+    n = len(np.asarray(cols[present[0]]))
+    kind = np.asarray(cols.get("fault_kind", np.full(n, DEFAULTS["fault_kind"])))
+    size = np.zeros(len(kind))
+    for column in present:
+        size = np.where(kind == SIZE_COLUMNS[column], np.asarray(cols.pop(column), dtype=float), size)
+    cols["fault_size"] = size
+    return cols
 
 
 def mach_limit_speed_kt(altitude_m, max_mach: float):
@@ -149,7 +176,7 @@ def _split_axes(axes: list[Axis], design: str, grid_axes) -> tuple[list[Axis], l
 def design_shape(axes: list[Axis], n_samples: int, design: str, grid_axes=()) -> tuple[int, int]:
     """(grid cells, draws per cell) of a design; raw row r is cell r // draws crossed with draw r % draws."""
     gridded, _ = _split_axes(axes, design, grid_axes)
-    return int(np.prod([len(a.grid_values()) for a in gridded], dtype=np.int64)), n_samples
+    return int(np.prod([len(grid_values(a)) for a in gridded], dtype=np.int64)), n_samples
 
 
 def whole_sample(axes: list[Axis], n_samples: int, design: str, seed: int, grid_axes=()):
@@ -175,15 +202,15 @@ def design_rows(axes: list[Axis], n_samples: int, design: str, seed: int, rows, 
     n = len(cell)
     cols: dict[str, np.ndarray] = {a.name: np.repeat(np.asarray([a.values[0]]), n) for a in axes if a.kind == "const"}
     if gridded:
-        index = np.unravel_index(cell, [len(a.grid_values()) for a in gridded])
+        index = np.unravel_index(cell, [len(grid_values(a)) for a in gridded])
         for a, i in zip(gridded, index):
-            cols[a.name] = np.asarray(a.grid_values())[i]
+            cols[a.name] = np.asarray(grid_values(a))[i]
     u = unit_rows("random" if design == "grid" else design, len(sampled), draw, seed, whole)
     for j, a in enumerate(sampled):
         if a.name == "vcas_kt" and a.kind == "range":
             cols["_u_vcas"] = u[:, j]
         else:
-            cols[a.name] = a.from_unit(u[:, j])
+            cols[a.name] = from_unit(a, u[:, j])
     altitude = np.asarray(cols.get("altitude_m", np.full(n, DEFAULTS["altitude_m"])), dtype=float)
     v_max = mach_limit_speed_kt(altitude, max_mach)
     if "_u_vcas" in cols:

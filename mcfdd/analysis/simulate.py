@@ -29,6 +29,11 @@ def _run_keys(indices, seed: int):
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(indices)
 
 
+def sample_time(k, dt_s: float):
+    """Time (s) of step index ``k`` (an integer array): k dt_s in JAX's default float type."""
+    return k.astype(jnp.result_type(float)) * dt_s
+
+
 def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1):
     """``lax.scan`` of ``body(carry, k, noise) -> (carry, y)`` over steps k = 0 .. n_steps - 1.
 
@@ -52,7 +57,7 @@ def plant_history(model: closed_loop.PlantModel, scenario: closed_loop.Scenario,
     state = closed_loop.init(params, jax.random.normal(key, (3,)))
 
     def body(state, k, noise):
-        return closed_loop.step(params, state, k * dt_s, noise, dt_s, substeps, kinds)
+        return closed_loop.step(params, state, sample_time(k, dt_s), noise, dt_s, substeps, kinds)
 
     return scan_steps(body, state, key, n_steps, closed_loop.NOISE_DIM)[1]
 
@@ -73,7 +78,7 @@ def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, sce
 
     def body(carry, k, noise):
         plant_state, fdd_state = carry
-        t = k * dt_s
+        t = sample_time(k, dt_s)
         plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
         fdd_state, fdd_out = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
                                          t, dt_s)

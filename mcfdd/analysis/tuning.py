@@ -32,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mcfdd.analysis import campaign, worst_case
+from mcfdd.analysis import campaign, simulate, worst_case
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import evaluator, system
 from mcfdd.plant import closed_loop
 
@@ -128,7 +129,7 @@ def fdd_run(fdd_params: system.FddParams, settings: campaign.Settings, plant: cl
     def body(carry, xs):
         state, red, acc = carry
         k, out = xs
-        t = k * dt_s
+        t = simulate.sample_time(k, dt_s)
         state, fo = system.step(fdd_params, state, out.u_c_m, out.u_m, vcas_m_s, altitude_m, t, dt_s)
         new = campaign.reduction_step(settings, truth, red, t, out, fo)
         return (state, new, worst_case.soft_step(settings, truth, temperature, acc, red, new, t, out, fo)), None
@@ -226,7 +227,7 @@ class Result(NamedTuple):
 def tune(gap_and_grad_fn, theta0: Tunable, iterations: int, learning_rate: float, callback=None) -> Result:
     """Adam ascent of the smooth log gap. ``gap_and_grad_fn(theta)`` returns (gap, bounds, gradient);
     ``callback(i, gap, bounds)`` sees every evaluation. Evaluations: iterations + 1."""
-    opt = optax.adam(learning_rate)
+    opt = standard_promotion(optax.adam(learning_rate))
     theta = theta0
     state = opt.init(theta)
     thetas, gaps, all_bounds = [], [], []

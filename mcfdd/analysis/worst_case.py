@@ -47,7 +47,8 @@ import numpy as np
 import optax
 
 from mcfdd.analysis import campaign, scenarios
-from mcfdd.analysis.simulate import run_keys, scan_steps
+from mcfdd.analysis.simulate import run_keys, sample_time, scan_steps
+from mcfdd.compute import standard_promotion
 from mcfdd.fdd import system
 from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 
@@ -236,21 +237,19 @@ class SearchSpace:
 
     ``continuous``: the 'range' axes (the unit cube searched); ``categorical``: the other varying
     axes (choices and discrete values), held fixed per point; ``constants``: const axes.
-    ``size_columns`` maps a column holding fault sizes to its fault kind (as in the campaign design).
     """
 
     continuous: tuple
     categorical: tuple
     constants: dict
-    size_columns: dict
     max_mach: float
 
     @classmethod
-    def from_axes(cls, axes, max_mach: float, size_columns: dict) -> "SearchSpace":
+    def from_axes(cls, axes, max_mach: float) -> SearchSpace:
         """Split the axes (:class:`mcfdd.config.Axis`) of a scenario space."""
         return cls(tuple(a for a in axes if a.kind == "range"),
                    tuple(a for a in axes if a.kind in ("choices", "values")),
-                   {a.name: a.values[0] for a in axes if a.kind == "const"}, dict(size_columns), max_mach)
+                   {a.name: a.values[0] for a in axes if a.kind == "const"}, max_mach)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -270,28 +269,21 @@ class SearchSpace:
                    max_mach=jnp.asarray(self.max_mach, f))
 
     def categories(self, u_cat) -> dict:
-        """Categorical columns of points drawn as u_cat (P, k) in [0, 1)^k (``Axis.from_unit``)."""
+        """Categorical columns of points drawn as u_cat (P, k) in [0, 1)^k (:func:`scenarios.from_unit`)."""
         u_cat = np.asarray(u_cat)
-        return {a.name: a.from_unit(u_cat[:, j]) for j, a in enumerate(self.categorical)}
+        return {a.name: scenarios.from_unit(a, u_cat[:, j]) for j, a in enumerate(self.categorical)}
 
     def table(self, categories: dict, x) -> dict:
         """Scenario-table columns (P rows) of points with categorical values and column values x (P, d).
 
-        Fault sizes are combined per kind into ``fault_size`` as in the campaign design.
+        Fault sizes are merged per kind into ``fault_size`` as in the campaign design.
         """
         x = np.asarray(x, dtype=float).reshape(-1, self.dim)
         n = x.shape[0]
         cols = {name: np.full(n, value) for name, value in self.constants.items()}
         cols.update({k: np.asarray(v) for k, v in categories.items()})
         cols.update({name: x[:, j] for j, name in enumerate(self.names)})
-        kind = np.asarray(cols.get("fault_kind", np.full(n, scenarios.DEFAULTS["fault_kind"])))
-        size = np.zeros(n)
-        for column, fault in self.size_columns.items():
-            if column in cols:
-                size = np.where(kind == fault, np.asarray(cols.pop(column), dtype=float), size)
-        if any(c in self.constants or c in categories or c in self.names for c in self.size_columns):
-            cols["fault_size"] = size
-        return cols
+        return scenarios.merge_fault_sizes(cols)
 
     def anchors(self, categories: dict, x0, nu_bank, dtype) -> Anchor:
         """Anchors (leading axis P) of points with categorical values and column values x0 (P, d)."""
@@ -348,7 +340,8 @@ def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, setti
         inner, acc = carry
         new, out, fo = campaign.step_one(params, fdd_params, settings, scenario, truth, inner, k, noise, dt_s,
                                          substeps, kinds)
-        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], k * dt_s, out, fo)), None
+        t = sample_time(k, dt_s)
+        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], t, out, fo)), None
 
     ((_, _, red), acc), _ = scan_steps(body, (carry, soft_init(params.qbar_pa.dtype)), key, n_steps,
                                        closed_loop.NOISE_DIM)
@@ -415,7 +408,7 @@ def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callbac
     feasible one (up to the Adam step). ``callback(i, score, aux)`` sees every evaluation.
     Evaluations: S (iterations + 1).
     """
-    opt = optax.adam(learning_rate)
+    opt = standard_promotion(optax.adam(learning_rate))
     u = jnp.asarray(u0)
     state = opt.init(u)
     best_u, best = u, jnp.full(u.shape[0], -jnp.inf, u.dtype)

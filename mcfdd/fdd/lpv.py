@@ -27,17 +27,6 @@ FORMAT_VERSION = 1
 COEFFICIENT_NAMES = ("C0", "C1", "C2", "C3")
 AFFINE_TERMS = ("const", "vcas", "altitude")
 
-# Section 6.1: fault-free, 100 / 66 / 33 % loss of surface effectiveness, 15 / 27 % pressure loss.
-PAPER_MODELS = (
-    ("fault-free", (1.0, 1.0)),
-    ("surface-loss-100", (1.0, 0.0)),
-    ("surface-loss-67", (1.0, 0.33)),
-    ("surface-loss-34", (1.0, 0.66)),
-    ("pressure-loss-15", (0.85, 1.0)),
-    ("pressure-loss-27", (0.73, 1.0)),
-)
-
-
 class Normalisation(NamedTuple):
     """Scheduling-variable normalisation: SI reference values and scales."""
 

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.compute import array_module
+from mcfdd.arrays import array_module
 from mcfdd.plant.atmosphere import G0_M_S2
 
 

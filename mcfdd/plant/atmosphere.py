@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mcfdd.compute import array_module
+from mcfdd.arrays import array_module
 
 P0_PA = 101325.0
 T0_K = 288.15

@@ -32,6 +32,7 @@ import numpy as np
 from mcfdd.compute import ONE, once
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, hinge, manoeuvres, rcam_loop, turbulence
 from mcfdd.plant.signals import PlantOutputs
+from mcfdd.plant.uncertainty import scaled
 
 DT_S = 0.01
 NOISE_DIM = 4  # normals per step: three for turbulence, one for the position sensor
@@ -113,12 +114,7 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
     """Per-run parameters: uncertainties applied, gains scheduled, turbulence discretised."""
     if isinstance(model, rcam_loop.RcamModel):
         return rcam_loop.prepare(model, scenario, dt_s)
-    nominal = model.actuator
-    act = nominal._replace(
-        supply_pressure_pa=nominal.supply_pressure_pa * scenario.supply_pressure_scale,
-        kci_m_s_a=nominal.kci_m_s_a * scenario.kci_scale,
-        kd_n_s2_m2=nominal.kd_n_s2_m2 * scenario.kd_scale,
-    )
+    act = scaled(model.actuator, scenario)
     qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
     load = hinge.flight_point_slice(model.table, scenario.vcas_m_s, scenario.altitude_m) * scenario.hinge_scale
     roll_damping, aileron_power = aircraft.roll_derivatives(model.aircraft, qbar, tas,
@@ -136,7 +132,7 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
         manoeuvre=scenario.manoeuvre,
         qbar_pa=qbar,
         tas_m_s=tas,
-        roll_inertia_kg_m2=model.aircraft.roll_inertia_kg_m2 * scenario.roll_inertia_scale,
+        roll_inertia_kg_m2=scaled(model.aircraft, scenario).roll_inertia_kg_m2,
         noise_std_m=jnp.asarray(scenario.noise_std_m),
         vcas_m_s=jnp.asarray(scenario.vcas_m_s),
         altitude_m=jnp.asarray(scenario.altitude_m),

@@ -65,7 +65,7 @@ def _cell(grid, value):
     step = grid[1] - grid[0]
     pos = jnp.clip((value - grid[0]) / step, 0.0, grid.shape[0] - 1.0)
     idx = jnp.minimum(jnp.floor(pos).astype(jnp.int32), grid.shape[0] - 2)
-    return idx, pos - idx
+    return idx, pos - idx.astype(pos.dtype)
 
 
 def flight_point_slice(table: HingeTable, vcas_m_s, altitude_m):

@@ -41,14 +41,10 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-KINDS = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sideslip",
-         "ol_step", "ol_doublet", "ol_sweep", "ol_multisine",
-         "level_flight", "pitch_doublet", "pedal_doublet", "nose_up", "nose_down", "fpa_change", "heading_change",
-         "speed_change", "coordinated_turn")
+from mcfdd.plant.choices import MANOEUVRE_KINDS as KINDS, OPEN_LOOP_KINDS
+
 KIND_CODE = {name: code for code, name in enumerate(KINDS)}
-OPEN_LOOP = frozenset(KIND_CODE[k] for k in KINDS if k.startswith("ol_"))
-FULL_AIRCRAFT = ("pitch_doublet", "pedal_doublet", "nose_up", "nose_down", "fpa_change", "heading_change",
-                 "speed_change", "coordinated_turn")  # families that only the rcam aircraft can fly
+OPEN_LOOP = frozenset(KIND_CODE[k] for k in OPEN_LOOP_KINDS)
 _MULTISINE_TONES = 5
 _MULTISINE_PEAK = 2.5  # the unit-amplitude Schroeder sum peaks at 2.0-2.4 over the usual bands
 

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, flight_law, hinge, manoeuvres, rcam, turbulence
 from mcfdd.plant.signals import RcamOutputs
+from mcfdd.plant.uncertainty import scaled
 
 
 class Lags(NamedTuple):
@@ -93,14 +94,8 @@ def build_model(actuator_params: actuator.ActuatorParams, aircraft_params: aircr
 
 def prepare(model: RcamModel, scenario, dt_s: float) -> RcamRunParams:
     """Per-run parameters: uncertainties applied, the level trim at (Vcas, h, mass), turbulence discretised."""
-    nominal = model.actuator
-    act = nominal._replace(
-        supply_pressure_pa=nominal.supply_pressure_pa * scenario.supply_pressure_scale,
-        kci_m_s_a=nominal.kci_m_s_a * scenario.kci_scale,
-        kd_n_s2_m2=nominal.kd_n_s2_m2 * scenario.kd_scale,
-    )
-    body = model.rcam._replace(mass_kg=model.rcam.mass_kg * scenario.mass_scale,
-                               ixx_m2=model.rcam.ixx_m2 * scenario.roll_inertia_scale)
+    act = scaled(model.actuator, scenario)
+    body = scaled(model.rcam, scenario)
     trim = rcam.trim(body, scenario.vcas_m_s, scenario.altitude_m)
     qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
     return RcamRunParams(

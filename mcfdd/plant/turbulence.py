@@ -34,7 +34,6 @@ _SIGMA_LIGHT_FT_S = (6.6, 6.9, 7.4, 6.7, 4.6, 2.7, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0)
 _SIGMA_MODERATE_FT_S = (8.6, 9.6, 10.6, 10.1, 8.0, 6.6, 5.0, 4.2, 2.7, 0.0, 0.0, 0.0)
 _W20_KT = (0.0, 15.0, 30.0)
 _HIGH_SCALE_FT = 1750.0
-LEVELS = {"none": 0.0, "light": 1.0, "moderate": 2.0}
 _NOISE_INTENSITY = math.pi
 
 

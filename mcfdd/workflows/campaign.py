@@ -16,14 +16,24 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
 import numpy as np
+import pandas as pd
 
-from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd import config, io, report
+from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
 from mcfdd.progress import bar, note
 from mcfdd.workflows import common
-from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, check_folder, dtype_of, load_bank,
-                                    precision, save_figure)
+from mcfdd.workflows.common import (
+    DEG_PER_RAD,
+    OutputFolderError,
+    as_config,
+    check_folder,
+    dtype_of,
+    load_bank,
+    precision,
+    save_figure,
+)
 
 CAMPAIGN_STATE = "campaign.json"
 # Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
@@ -90,16 +100,12 @@ def design_line(cfg: config.CampaignConfig, n: int) -> str:
 
 def chunk_size(requested: int, n: int) -> int:
     """Scenarios per chunk: ``requested`` (at most n) rounded up to LANE_BLOCK x devices."""
-    import jax
-
     block = LANE_BLOCK * jax.device_count()
     return -(-min(requested, max(n, 1)) // block) * block
 
 
 def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     """Columns, scenarios, truths, nearest models and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
-    from mcfdd.analysis import campaign, scenarios, simulate
-
     padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
     cols = build.design_chunk(setup.config, setup.plan, padded)
     kind = np.asarray(cols["fault_kind"])
@@ -143,8 +149,6 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
     Returns:
         The chunk's rows of the scenario table: column name -> (k,) array.
     """
-    from mcfdd.analysis import campaign, metrics
-
     c = cfg.campaign
     k = len(ids)
     with precision(c.precision):
@@ -237,8 +241,6 @@ class CampaignResult:
 
     def __init__(self, cfg: config.CampaignConfig, scenarios, parts: np.ndarray, models, meta: dict,
                  simulated: int, workers=None):
-        from mcfdd import report
-
         self.config, self.scenarios, self.models, self.meta, self.simulated = cfg, scenarios, tuple(models), meta, \
             simulated
         self._parts = parts
@@ -288,7 +290,7 @@ class CampaignResult:
                 'detection_times', 'confusion', 'detectability', 'stall_latency') that
                 :meth:`left_out` does not name.
         """
-        from mcfdd import plots, report
+        from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
         if name not in PLOTS:
             raise ValueError(f"plot: {name!r} is not one of {', '.join(PLOTS)}")
@@ -317,8 +319,6 @@ class CampaignResult:
         ``title``, ending with the figures written and those :meth:`left_out`, with the reason) and a PNG per
         :data:`PLOTS` name not left out.
         """
-        from mcfdd import report
-
         out = Path(out)
         left_out = self.left_out()
         no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
@@ -361,7 +361,7 @@ def campaign_executor(scheduler: str | None = None, workers: int | None = None, 
     if connect_timeout_s <= 0:
         raise config.ConfigError(f"--connect-timeout: {connect_timeout_s} is not allowed; expected seconds > 0")
     try:
-        from mcfdd.workflows import cluster
+        from mcfdd.workflows import cluster  # deferred: Dask is the optional 'distributed' extra
     except ImportError:
         raise config.ConfigError("--scheduler/--workers need Dask: pip install 'mcfdd[distributed]'") from None
     with cluster.dask_cluster(scheduler, workers, cluster.security(tls_ca_file, tls_cert, tls_key),
@@ -385,7 +385,7 @@ def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     if executor is None:
         return ((ids, *chunk_task(cfg, ids, size, plan)) for ids in chunks), lambda: None
     if type(executor).__module__.startswith("distributed"):
-        from mcfdd.workflows import cluster
+        from mcfdd.workflows import cluster  # deferred: Dask is the optional 'distributed' extra
 
         return cluster.submit(executor, chunk_task, cfg, chunks, size, plan, cache)
     futures = {executor.submit(chunk_task, cfg, ids, size, plan): ids for ids in chunks}
@@ -395,8 +395,6 @@ def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
 
 def worker_table(records, n_steps: int):
     """Per process that ran chunks: chunks, scenarios, busy seconds and scenario-steps per busy second."""
-    import pandas as pd
-
     frame = pd.DataFrame(records, columns=["worker", "scenarios", "busy_s"])
     table = frame.groupby("worker", sort=True).agg(chunks=("scenarios", "size"), scenarios=("scenarios", "sum"),
                                                    busy_s=("busy_s", "sum")).reset_index()
@@ -503,8 +501,6 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
 
 def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache, plan) -> CampaignResult:
     """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
-    import pandas as pd
-
     c = cfg.campaign
     common.compile_cache(compile_cache)
     with precision(c.precision):

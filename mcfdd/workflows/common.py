@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-import os
-
+import jax
+import jax.monitoring
 import numpy as np
+from jax.experimental.compilation_cache import compilation_cache
 
 from mcfdd import config, io
+from mcfdd.fdd import lpv
 
 
 class OutputFolderError(config.ConfigError):
@@ -36,15 +39,11 @@ def dtype_of(precision: str):
 
 def precision(name: str):
     """Context in which JAX computes at ``name`` ('float32' or 'float64'); restores the caller's setting."""
-    import jax
-
     return jax.enable_x64(name == "float64")
 
 
 def load_bank(fdd_cfg: config.FddConfig, dtype):
     """The FDD's LPV gain bank and model names; a bad bank is a configuration error naming ``fdd.bank``."""
-    from mcfdd.fdd import lpv
-
     try:
         data = io.load_bank_dict(None if fdd_cfg.bank == "default" else fdd_cfg.bank)
         return lpv.from_dict(data, dtype)
@@ -71,9 +70,6 @@ def compile_cache(folder=None) -> Path | None:
     Returns:
         The folder in use, or None when off.
     """
-    import jax
-    from jax.experimental.compilation_cache import compilation_cache
-
     path = None if folder == "off" else Path(folder or default_compile_cache()).expanduser()
     if path is not None:
         try:
@@ -90,7 +86,7 @@ def compile_cache(folder=None) -> Path | None:
 
 def save_figure(fig, path: Path) -> Path:
     """Write a figure as PNG (110 dpi) and close it."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: pyplot is heavy and only closes the figure here
 
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -116,12 +112,8 @@ class CompileCounter:
             self.count += 1
 
     def __enter__(self):
-        import jax.monitoring
-
         jax.monitoring.register_event_duration_secs_listener(self._listen)
         return self
 
     def __exit__(self, *exc):
-        import jax.monitoring
-
         jax.monitoring.unregister_event_duration_listener(self._listen)

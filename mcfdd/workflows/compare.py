@@ -139,7 +139,8 @@ def compare(a, b, labels: tuple | None = None) -> CompareResult:
         rows_k = detected & ((kinds == kind) | (kind == "all"))
         times.append({"fault_kind": kind, **metrics.paired_differences(
             ta["detection_latency_s"].to_numpy()[rows_k], tb["detection_latency_s"].to_numpy()[rows_k])})
-    configs = {label: json.loads(m["config"]) if m.get("config") else None for label, m in zip(labels, (meta_a, meta_b))}
+    configs = {label: json.loads(m["config"]) if m.get("config") else None
+               for label, m in zip(labels, (meta_a, meta_b))}
     meta = io.provenance(json.dumps(configs), None if not meta_a.get("seed") else int(meta_a["seed"]),
                          campaigns=list(labels), revisions=[meta_a.get("git_revision"), meta_b.get("git_revision")])
     return CompareResult(pd.DataFrame(rows), pd.DataFrame(times),

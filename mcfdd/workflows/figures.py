@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
-from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd import config, io, plots
+from mcfdd.analysis import build, metrics
 from mcfdd.workflows.common import load_bank, save_figure
 from mcfdd.workflows.simulate import histories, run_histories
 
@@ -15,8 +16,6 @@ from mcfdd.workflows.simulate import histories, run_histories
 def stall_latencies(run, dt_s: float):
     """Per stall event of one run's history: onset and end (s) and the eta latency (s) of both identification
     methods (NaN if not identified); and the time (s) each method's eta = 1 outside stall events."""
-    import pandas as pd
-
     stall = run["stall"].to_numpy(dtype=bool)
     t = run["t_s"].to_numpy()
     edges = np.flatnonzero(np.diff(np.concatenate([[0], stall.astype(int), [0]])))
@@ -67,11 +66,6 @@ def paper_figures(folder="configs", progress: bool = True) -> FiguresResult:
     Returns:
         A :class:`FiguresResult`.
     """
-    import pandas as pd
-
-    from mcfdd import plots
-    from mcfdd.analysis import metrics
-
     folder = Path(folder)
     fig3_cfg = config.load_config(folder / "fig3.toml", "simulate")
     fig4_cfg = config.load_config(folder / "fig4.toml", "sweep")

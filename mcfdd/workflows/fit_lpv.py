@@ -7,9 +7,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd.analysis import build, lpv_fit
+from mcfdd.fdd import lpv
+from mcfdd.plant import atmosphere, closed_loop, manoeuvres
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, precision, save_figure
 
@@ -38,7 +41,7 @@ class LpvFitResult:
 
     def plot(self, name: str):
         """'responses' (held-out runs, nonlinear against LPV) or 'gains' (k over the envelope), a Figure."""
-        from mcfdd import plots
+        from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
         if name == "responses":
             return plots.lpv_responses(self.responses, list(self.models))
@@ -80,12 +83,6 @@ def fit_lpv(cfg, progress: bool = True) -> LpvFitResult:
 
 
 def _fit(cfg: config.LpvFitConfig, source, progress: bool) -> LpvFitResult:
-    import pandas as pd
-
-    from mcfdd.analysis import lpv_fit
-    from mcfdd.fdd import lpv
-    from mcfdd.plant import atmosphere, closed_loop, manoeuvres
-
     dtype = dtype_of(cfg.precision)
     model = build.plant_model(cfg.plant)
     runs, opt, max_mach = cfg.runs, cfg.optimiser, cfg.plant.aircraft.max_mach

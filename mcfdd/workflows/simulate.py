@@ -6,10 +6,16 @@ import math
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 
 from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd.analysis import batch, build
+from mcfdd.analysis.scenarios import to_scenario
+from mcfdd.analysis.simulate import fdd_batch, run_keys
+from mcfdd.plant import atmosphere, closed_loop, signals
 from mcfdd.progress import note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure, slug
 
@@ -37,13 +43,6 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
 
     Returns (tidy DataFrame of time histories, LPV model names).
     """
-    import jax
-    import jax.numpy as jnp
-
-    from mcfdd.analysis import batch, simulate
-    from mcfdd.analysis.scenarios import to_scenario
-    from mcfdd.plant import atmosphere, closed_loop, signals
-
     with precision(sim.precision):
         dtype = dtype_of(sim.precision)
         model = build.plant_model(plant_cfg)
@@ -53,12 +52,12 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         kinds = batch.kinds_in(scenarios.manoeuvre.kind)
         seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
         unique, inverse = np.unique(seeds, return_inverse=True)
-        keys = jnp.concatenate([simulate.run_keys(int(s), [0]) for s in unique])[inverse]
+        keys = jnp.concatenate([run_keys(int(s), [0]) for s in unique])[inverse]
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",
              progress)
         start = time.perf_counter()
         # on the host at once: indexing and scaling them as JAX arrays would compile a program per operation
-        plant, fdd = jax.tree.map(np.asarray, simulate.fdd_batch(model, fdd_params, scenarios, keys, sim.n_steps,
+        plant, fdd = jax.tree.map(np.asarray, fdd_batch(model, fdd_params, scenarios, keys, sim.n_steps,
                                                                  sim.dt_s, sim.substeps, kinds))
         note(f"  done in {time.perf_counter() - start:.1f} s (compilation included)", progress)
     r_arm = model.actuator.r_arm_m
@@ -119,8 +118,6 @@ class Histories:
     def summary(self):
         """One row per run: largest |deflection| (deg), time in stall loads and with eta_stall = 1 (s), and the
         first time (s) each fault model was decided."""
-        import pandas as pd
-
         rows = []
         for name, group in self._frame.groupby("run", sort=False):
             detected = group["detected_model"].to_numpy()
@@ -134,7 +131,7 @@ class Histories:
 
     def plot(self, run: str):
         """Deflections, residuals, evaluations and decisions of one run, a matplotlib Figure."""
-        from mcfdd import plots
+        from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
         if run not in self.runs:
             raise ValueError(f"run: {run!r} is not one of {', '.join(self.runs)}")
@@ -146,7 +143,7 @@ class Histories:
         written = [io.write_table(self._frame, out / "timeseries.parquet", self.meta)]
         written.extend(save_figure(self.plot(run), out / f"{slug(run)}.png") for run in self.runs)
         if "alpha_deg" in self._frame:
-            from mcfdd import plots
+            from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
             written.extend(save_figure(plots.flight_state(self._frame[self._frame["run"] == run], run),
                                        out / f"{slug(run)}-flight.png") for run in self.runs)

@@ -6,10 +6,13 @@ import math
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 
-from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd import config, io, report
+from mcfdd.analysis import batch, build, campaign, scenarios, simulate, tuning
 from mcfdd.progress import bar, note
 from mcfdd.workflows.campaign import run_campaign
 from mcfdd.workflows.common import CompileCounter, as_config, dtype_of, load_bank, precision, save_figure
@@ -20,10 +23,6 @@ def training_set(cfg: config.CampaignConfig, model, bank, dtype):
 
     Returns (:class:`mcfdd.analysis.tuning.TrainingSet`, number of runs).
     """
-    import jax.numpy as jnp
-
-    from mcfdd.analysis import batch, campaign, scenarios, simulate, tuning
-
     c = cfg.campaign
     cols, n = build.design(cfg)
     kind = np.asarray(cols.get("fault_kind", np.full(n, "none")))
@@ -76,7 +75,7 @@ class TuneResult:
 
     def plot(self, name: str = "history"):
         """'history': tau_f, tau_d and the normalised gap over the iterations, a matplotlib Figure."""
-        from mcfdd import plots
+        from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
         if name != "history":
             raise ValueError(f"plot: {name!r} is not one of history")
@@ -136,12 +135,6 @@ def tune(cfg, progress: bool = True) -> TuneResult:
 
 
 def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
-    import jax
-    import pandas as pd
-
-    from mcfdd import report
-    from mcfdd.analysis import tuning
-
     ts, tr = cfg.tune, cfg.training
     det = ts.detector
     dtype = dtype_of(tr.precision)

@@ -7,17 +7,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
-from mcfdd import config, io
-from mcfdd.analysis import build
+from mcfdd import config, io, report
+from mcfdd.analysis import build, worst_case as wc
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure
 
 
 def _points_frame(space, points, scale: float, value: str, **labels):
     """One row per evaluated point: labels, scenario columns, hard and smooth bound (scaled)."""
-    import pandas as pd
-
     table = space.table(points.categories, points.x)
     n = len(points.hard)
     return pd.DataFrame({**{k: np.broadcast_to(np.asarray(v), n) for k, v in labels.items()}, **table,
@@ -46,7 +45,7 @@ class WorstCaseResult:
 
     def plot(self, name: str = "history"):
         """'history': the bound per simulation and method, a matplotlib Figure."""
-        from mcfdd import plots
+        from mcfdd import plots  # deferred: matplotlib only when a figure is drawn
 
         if name != "history":
             raise ValueError(f"plot: {name!r} is not one of history")
@@ -54,8 +53,6 @@ class WorstCaseResult:
 
     def save(self, out, title: str = "Worst case") -> list[Path]:
         """Write ``worst_case.parquet``, ``summary.parquet``, ``report.md`` (headed ``title``), ``history.png``."""
-        from mcfdd import report
-
         out = Path(out)
         parameters = [c for c in self.points.columns if c not in (self.value, f"{self.value}_smooth", "method",
                                                                   "start", "iteration", "index", "status")]
@@ -93,11 +90,6 @@ def worst_case(cfg, progress: bool = True) -> WorstCaseResult:
 
 
 def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
-    import pandas as pd
-
-    from mcfdd import report
-    from mcfdd.analysis import worst_case as wc
-
     sim, s = cfg.simulation, cfg.search
     dtype = dtype_of(sim.precision)
     model = build.plant_model(cfg.plant)

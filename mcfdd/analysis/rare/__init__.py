@@ -23,8 +23,18 @@ batches; g is a static argument, so a second run with the same g, sizes and opti
 """
 
 from mcfdd.analysis.rare.estimate import Estimate, Level, combine, stratified
-from mcfdd.analysis.rare.exposure import (CATASTROPHIC, CLASSES, HAZARDOUS, MAJOR, Airframes, Conditional,
-                                          airframes, certification_class, corners, per_flight_hour)
+from mcfdd.analysis.rare.exposure import (
+                                          CATASTROPHIC,
+                                          CLASSES,
+                                          HAZARDOUS,
+                                          MAJOR,
+                                          Airframes,
+                                          Conditional,
+                                          airframes,
+                                          certification_class,
+                                          corners,
+                                          per_flight_hour,
+)
 from mcfdd.analysis.rare.importance import DesignPoints, design_points, importance_sampling
 from mcfdd.analysis.rare.sampling import monte_carlo
 from mcfdd.analysis.rare.subset import conditional_move, subset_simulation

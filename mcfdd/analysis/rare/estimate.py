@@ -29,8 +29,7 @@ import dataclasses
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import norm
-from scipy.stats import t as student_t
+from scipy.stats import norm, t as student_t
 
 from mcfdd.analysis.metrics import clopper_pearson
 

@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp

@@ -194,7 +194,8 @@ def markdown(result: SensitivityResult, drawn) -> str:
     if result.indices.empty and not result.screen.empty:
         lines += ["## Gradient screen", "", "| outcome | stratum | factor | nu | DGSM bound |", "|---|---|---|---|---|"]
         lines += [f"| {r.outcome} | {r.stratum} | {r.factor} | {r.nu:.3g} | {_ci(r.bound, r.bound_lo, r.bound_hi)} |"
-                  for _, g in result.screen.groupby(["outcome", "stratum"], sort=False) for r in g.head(TOP).itertuples()]
+                  for _, g in result.screen.groupby(["outcome", "stratum"], sort=False)
+                  for r in g.head(TOP).itertuples()]
         lines.append("")
     lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs")]
     if result.notes:

@@ -32,9 +32,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mcfdd import config
-from mcfdd.analysis import build, scenarios
-from mcfdd.analysis import sensitivity as sens
+from mcfdd import columns, config
+from mcfdd.analysis import build, scenarios, sensitivity as sens
 
 NOISE = "noise_path"  # the factor of a run's random numbers (turbulence and sensor noise), one group
 # a campaign's largest number of scenarios (the range of campaign.scenarios)
@@ -97,19 +96,19 @@ def scored(t) -> np.ndarray:
 EVENTS = {
     "false_alarm": Event("false_alarm", lambda t: scored(t) & (t["fault_kind"].to_numpy() == "none"),
                          "LOE false alarms (fault-free runs)"),
-    "missed": Event("missed", lambda t: scored(t) & t["fault_kind"].isin(config.PARAMETRIC).to_numpy()
+    "missed": Event("missed", lambda t: scored(t) & t["fault_kind"].isin(columns.PARAMETRIC).to_numpy()
                     & (t["true_model"].to_numpy() > 0), "missed detections (runs with a parametric fault)"),
 }
 
 
 def applies(outcome: Outcome, fault_kind: str) -> bool:
     """Whether the outcome is analysed in a stratum of this fault kind."""
-    return {"fault_free": fault_kind == "none", "faulty": fault_kind in config.PARAMETRIC}.get(outcome.strata, True)
+    return {"fault_free": fault_kind == "none", "faulty": fault_kind in columns.PARAMETRIC}.get(outcome.strata, True)
 
 
 def acts(factor: str, fault_kind: str) -> bool:
     """False for the size column of another fault kind (it cannot act on the stratum's runs)."""
-    return config.SIZE_COLUMNS.get(factor, fault_kind) == fault_kind
+    return columns.SIZE_COLUMNS.get(factor, fault_kind) == fault_kind
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,7 +162,7 @@ def design(cfg: config.CampaignConfig) -> Design:
     a, b = sens.saltelli_matrices(s.samples, dim, seed)
     unit, from_b = sens.pick_freeze(a, b) if s.method == "pick_freeze" else (a, np.zeros(a.shape, dtype=bool))
     per = len(unit)
-    cells = math.prod(len(cfg.space.axis(n).grid_values()) for n in strata)
+    cells = math.prod(len(scenarios.grid_values(cfg.space.axis(n))) for n in strata)
     if cells * per > MAX_RUNS:
         raise config.ConfigError(f"sensitivity.samples: {s.samples} base samples give {cells * per} runs ({cells} "
                                  f"strata x {per}), more than {MAX_RUNS}; use fewer")
@@ -182,15 +181,16 @@ def design(cfg: config.CampaignConfig) -> Design:
 def outcome_names(cfg: config.CampaignConfig) -> tuple[str, ...]:
     """The outcomes to analyse: [sensitivity] outcomes (checked) or the defaults the space has strata for."""
     axis = cfg.space.axis("fault_kind")
-    kinds = axis.grid_values() if axis else (scenarios.DEFAULTS["fault_kind"],)
+    kinds = scenarios.grid_values(axis) if axis else (scenarios.DEFAULTS["fault_kind"],)
     names = cfg.sensitivity.outcomes
     for i, name in enumerate(names):
         if name not in OUTCOMES:
             raise config.ConfigError(f"sensitivity.outcomes[{i}]: {name!r} is not an outcome; expected one of "
                                      f"{', '.join(OUTCOMES)}")
         if not any(applies(OUTCOMES[name], k) for k in kinds):
-            raise config.ConfigError(f"sensitivity.outcomes[{i}]: {name} needs {OUTCOMES[name].strata.replace('_', '-')}"
-                                     f" runs; space.fault_kind has {', '.join(map(str, kinds))}")
+            needs = OUTCOMES[name].strata.replace('_', '-')
+            raise config.ConfigError(f"sensitivity.outcomes[{i}]: {name} needs {needs} runs; space.fault_kind has "
+                                     f"{', '.join(map(str, kinds))}")
     return names or tuple(n for n in DEFAULT_OUTCOMES if any(applies(OUTCOMES[n], k) for k in kinds))
 
 
@@ -205,7 +205,8 @@ def outcome_values(outcome: Outcome, rows) -> np.ndarray:
 
 
 def strata(d: Design, table):
-    """Per stratum present in the design's run table: (label, fault kind, its rows ordered by block, then base point)."""
+    """Per stratum present in the design's run table: (label, fault kind, its rows ordered by block, then base
+    point)."""
     cell, block, base = d.locate(table["scenario_id"].to_numpy())
     for c in np.unique(cell):
         idx = np.flatnonzero(cell == c)

@@ -11,9 +11,8 @@ import math
 
 import numpy as np
 
-from mcfdd import config
-from mcfdd.analysis import build
-from mcfdd.analysis import sensitivity as sens
+from mcfdd import columns, config
+from mcfdd.analysis import build, scenarios, sensitivity as sens
 from mcfdd.progress import bar
 from mcfdd.workflows import campaign as campaign_wf
 from mcfdd.workflows.sensitivity.study import EVENTS, OUTCOMES, Design, acts, applies, outcome_values, scored, strata
@@ -49,7 +48,8 @@ def indices_table(d: Design, table, names, s: config.SensitivityConfig, notes: l
             notes.append(f"{name}, {label}: {err}; not analysed")
             continue
         out += [{"outcome": name, "stratum": label, "factor": f, "kind": d.kinds[i],
-                 **{key: float(r[key][i]) for key in ("first", "first_lo", "first_hi", "total", "total_lo", "total_hi")},
+                 **{key: float(r[key][i])
+                    for key in ("first", "first_lo", "first_hi", "total", "total_lo", "total_hi")},
                  "base_points": used, "runs": used * d.blocks, "mean": r["mean"], "std": math.sqrt(r["variance"])}
                 for i, f in enumerate(d.factors) if acts(f, kind)]
     notes += [f"{name}: no base point has it in all its runs (it needs {OUTCOMES[name].what.rsplit('; ', 1)[-1]}) "
@@ -78,8 +78,8 @@ def _column(rows, axis: config.Axis) -> np.ndarray:
     """An axis's values in a table's rows (a fault-size axis from ``fault_size`` where its kind is the run's)."""
     if axis.name in rows:
         return rows[axis.name].to_numpy()
-    return np.where(rows["fault_kind"].to_numpy() == config.SIZE_COLUMNS[axis.name], rows["fault_size"].to_numpy(),
-                    axis.grid_values()[0])
+    return np.where(rows["fault_kind"].to_numpy() == columns.SIZE_COLUMNS[axis.name], rows["fault_size"].to_numpy(),
+                    scenarios.grid_values(axis)[0])
 
 
 def _gradients(problem, u, categories: dict, keys, shown):
@@ -109,8 +109,7 @@ def screen_table(d: Design, table, names, s: config.SensitivityConfig, notes: li
     """DGSM nu and the bound on the total index per continuous factor, from gradients at each stratum's A points."""
     import pandas as pd
 
-    from mcfdd.analysis import simulate
-    from mcfdd.analysis import worst_case as wc
+    from mcfdd.analysis import simulate, worst_case as wc
 
     smooth = [n for n in names if OUTCOMES[n].smooth]
     work = [(n, st) for n in smooth for st in strata(d, table) if applies(OUTCOMES[n], st[1])]
@@ -128,8 +127,8 @@ def screen_table(d: Design, table, names, s: config.SensitivityConfig, notes: li
                                  s.temperature, c.n_steps, c.dt_s, c.substeps, setup.dtype)
             a = rows.iloc[:d.samples]
             keys = simulate.run_keys(d.seed, d.plan.keys[a["scenario_id"].to_numpy()])
-            y, dy = _gradients(problem, d.unit[:d.samples][:, cont], {ax.name: _column(a, ax) for ax in space.categorical},
-                               keys, shown)
+            fixed = {ax.name: _column(a, ax) for ax in space.categorical}
+            y, dy = _gradients(problem, d.unit[:d.samples][:, cont], fixed, keys, shown)
             if outcome.undefined is not None:
                 dy[~np.isfinite(y)] = 0.0
                 y = np.where(np.isfinite(y), y, outcome.undefined)
@@ -167,8 +166,8 @@ def regional_table(cfg: config.CampaignConfig, table, resamples: int, confidence
         runs = event.runs(table)
         happened = table[event.column].to_numpy(dtype=bool) & runs
         for i, axis in enumerate(axes):
-            rows = runs & ((table["fault_kind"] == config.SIZE_COLUMNS[axis.name]).to_numpy()
-                           if axis.name in config.SIZE_COLUMNS else True)
+            rows = runs & ((table["fault_kind"] == columns.SIZE_COLUMNS[axis.name]).to_numpy()
+                           if axis.name in columns.SIZE_COLUMNS else True)
             hit = happened[rows]
             x = _column(table[rows], axis)
             if not hit.any() or hit.all() or len(np.unique(x)) < 2:
