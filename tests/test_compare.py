@@ -15,9 +15,9 @@ import pandas as pd
 import pytest
 
 import mcfdd
+from helpers import small_config
 from mcfdd import cli, io
 from mcfdd.analysis import metrics
-from test_campaign import write_config
 
 
 def binomial_two_sided(k: int, n: int) -> float:
@@ -71,7 +71,7 @@ def test_paired_counts_and_differences():
 def two_fdds(tmp_path_factory):
     """One small space run with the default FDD (a) and with a low detection threshold and floor (b)."""
     folder = tmp_path_factory.mktemp("compare")
-    path = write_config(folder, n=128)
+    path = small_config(folder, n=128)
     low = {"fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.excitation_floor_deg": 0.01}
     a = mcfdd.run_campaign(mcfdd.load_config(path), out=folder / "a", progress=False)
     b = mcfdd.run_campaign(mcfdd.load_config(path, overrides=low), out=folder / "b", progress=False)
@@ -115,14 +115,14 @@ def test_compare_refuses_campaigns_of_other_spaces(two_fdds, tmp_path, capsys):
     """Another seed, other scenarios, another design value: one line naming what differs (exit 2 from the
     command); a folder without a campaign is named too."""
     folder, a, _ = two_fdds
-    other_seed = mcfdd.run_campaign(mcfdd.load_config(write_config(tmp_path, n=128), overrides={"campaign.seed": 8}),
+    other_seed = mcfdd.run_campaign(mcfdd.load_config(small_config(tmp_path, n=128), overrides={"campaign.seed": 8}),
                                     progress=False)
     with pytest.raises(mcfdd.CampaignMismatchError, match="other seeds"):
         mcfdd.compare(a, other_seed)
-    fewer = mcfdd.run_campaign(mcfdd.load_config(write_config(tmp_path, n=64)), progress=False)
+    fewer = mcfdd.run_campaign(mcfdd.load_config(small_config(tmp_path, n=64)), progress=False)
     with pytest.raises(mcfdd.CampaignMismatchError, match="other scenarios"):
         mcfdd.compare(a, fewer)
-    moved = mcfdd.run_campaign(mcfdd.load_config(write_config(tmp_path, n=128),
+    moved = mcfdd.run_campaign(mcfdd.load_config(small_config(tmp_path, n=128),
                                                  overrides={"space.noise_std_mm": [0.03, 0.08]}), progress=False)
     with pytest.raises(mcfdd.CampaignMismatchError, match="design column noise_std_mm differs"):
         mcfdd.compare(a, moved)

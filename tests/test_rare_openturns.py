@@ -17,7 +17,7 @@ import pytest
 from scipy.stats import norm
 
 from mcfdd.analysis import rare
-from test_rare import PROBLEMS
+from rare_problems import PROBLEMS
 
 
 def ot_event(problem):
