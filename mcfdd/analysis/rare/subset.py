@@ -170,7 +170,7 @@ def _level(g, run: _Run, nc, ns, chunk, args, target) -> _Run:
         sigma = jnp.minimum(scale * spread, 1.0)
         u, gu, accept = conditional_move(g, u, gu, b, sigma, jax.random.fold_in(sub, t), chunk, args)
         rate = jnp.mean(accept.astype(scale.dtype))
-        scale = jnp.exp(jnp.log(scale) + (rate - target) / jnp.sqrt(t + 1.0))
+        scale = jnp.exp(jnp.log(scale) + (rate - target) / jnp.sqrt((t + 1).astype(scale.dtype)))
         return (u, gu, scale), (u, gu, rate)
 
     (_, _, scale), (us, gus, rates) = jax.lax.scan(step, (seeds, gseeds, run.scale), jnp.arange(ns - 1))
