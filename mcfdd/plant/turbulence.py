@@ -1,20 +1,37 @@
-"""Dryden turbulence for the roll axis (MIL-F-8785C forms), discretised exactly.
+"""Dryden turbulence (MIL-F-8785C forms), discretised exactly: the roll axis's two gust components and
+the full aircraft's six.
 
-Two gust components disturb the roll axis: the lateral gust velocity v_g (enters as a sideslip
-v_g / V) and the roll-rate gust p_g. Their forming filters, driven by white noise whose one-sided
-spectrum is 1 (intensity pi), are
+Roll axis. Two gust components disturb the roll axis at its fixed flight point: the lateral gust
+velocity v_g (enters as a sideslip v_g / V) and the roll-rate gust p_g. Their forming filters,
+driven by white noise whose one-sided spectrum is 1 (intensity pi), are
 
     H_v(s) = sigma_v sqrt(L_v / (pi V)) (1 + sqrt(3) tau_v s) / (1 + tau_v s)^2,   tau_v = L_v / V
     H_p(s) = sigma_w sqrt(0.8 / V) (pi / (4 b))^(1/6) / (L_w^(1/3) (1 + tau_p s)),  tau_p = 4 b / (pi V)
 
 Scale lengths and intensities follow MIL-F-8785C: below 1000 ft the low-altitude model
-(sigma_w = 0.1 W20, W20 = 15 kt light, 30 kt moderate), above 2000 ft L = 1750 ft and sigma from
-the probability-of-exceedance curves (1e-2 light, 1e-3 moderate), linear in between.
+(sigma_w = 0.1 W20, W20 = 15 kt light, 30 kt moderate, 45 kt severe; sigma_u = sigma_v = sigma_w /
+(0.177 + 0.000823 h)^0.4, L_w = h, L_u = L_v = h / (0.177 + 0.000823 h)^1.2), above 2000 ft
+L = 1750 ft and sigma from the probability-of-exceedance curves of its Fig. 7 (1e-2 light,
+1e-3 moderate, 1e-5 severe), scale lengths and intensities linear in between.
 
 The sampled process is exact: the filter states start from their stationary covariance P and
 advance as ``x+ = Phi x + chol(Q_d) n`` with ``Phi = exp(A T)`` and
 ``Q_d = pi * integral_0^T exp(A s) B B^T exp(A^T s) ds`` in closed form (regularised incomplete
 gamma functions, accurate in float32), so every sample has the Dryden variance.
+
+Full aircraft (:func:`gust_step`). Six components at the flight point of each sample (altitude,
+true airspeed): u (first order, sigma_u sqrt(2 L_u / (pi V)) / (1 + L_u/V s)), v and w (the form
+of H_v), p (H_p), and the angular gusts of the frozen field traversed at V,
+
+    q_g = -(s / V) / (1 + 4 b / (pi V) s) w_g,     r_g = (s / V) / (1 + 3 b / (pi V) s) v_g
+
+(q_g = -dw_g/dx, r_g = dv_g/dx: the aerodynamic rates are p - p_g, q - q_g, r - r_g, as the
+rigid-body velocity of a point of the airframe gives them; MIL-F-8785C leaves the signs to the
+axis convention). Each forming filter runs with states scaled to unit stationary variance, so
+its discrete transition depends on dt / tau alone and its noise covariance is I - Phi Phi^T:
+discretised exactly at the current point every sample, the states keep unit variance however
+V and h move, and each gust is its state times the current point's intensity. q_g and r_g
+low-pass the sampled w_g and v_g exactly for gusts linear between samples.
 """
 
 from __future__ import annotations
