@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import once
 from mcfdd.plant import control_law, rcam
 from mcfdd.plant.atmosphere import G0_M_S2
 
@@ -40,12 +41,9 @@ class FlightLawParams(NamedTuple):
     path_gain_1_s: float = 0.6
     pitch_time_constant_s: float = 0.5
     pitch_integral_1_s: float = 1.0
-    stabiliser_min_rad: float = math.radians(-25.0)
-    stabiliser_max_rad: float = math.radians(10.0)
     yaw_damping_1_s: float = 1.5
     sideslip_gain_1_s2: float = 1.0
     sideslip_integral_1_s3: float = 0.5
-    rudder_max_rad: float = math.radians(30.0)
     pedal_sideslip_rad: float = math.radians(10.0)  # sideslip demanded by full pedal
     bank_gain_1_s: float = 0.5
     max_roll_accel_rad_s2: float = math.radians(20.0)  # the demanded roll rate changes no faster
@@ -53,8 +51,6 @@ class FlightLawParams(NamedTuple):
     nav_bank_rad: float = math.radians(25.0)
     speed_gain_1_s: float = 0.15
     speed_integral_1_s2: float = 0.01
-    throttle_min_rad: float = math.radians(0.5)
-    throttle_max_rad: float = math.radians(10.0)
     stick_deadband: float = 0.02
 
 
@@ -77,6 +73,17 @@ class Measurements(NamedTuple):
     gamma: jnp.ndarray
     tas: jnp.ndarray
     vcas: jnp.ndarray
+
+
+class Authority(NamedTuple):
+    """Position limits (rad) of the stabiliser, the rudder (symmetric) and the throttles, where the law's
+    outputs saturate and its integrators stop (the surfaces' limits, :mod:`mcfdd.plant.rcam_loop`)."""
+
+    stabiliser_min_rad: float
+    stabiliser_max_rad: float
+    rudder_max_rad: float
+    throttle_min_rad: float
+    throttle_max_rad: float
 
 
 class Trim(NamedTuple):
@@ -108,17 +115,18 @@ def init(zero) -> LawState:
     return LawState(zero, zero, zero, zero, zero, zero)
 
 
-def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s):
+def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s, one):
     """``offset + kp (e + ki integral e)`` limited to [lo, hi]; returns (new integrator, output)."""
-    raw = offset + kp * (error + ki * integrator)
+    raw = once(offset + kp * (error + ki * integrator), one)
     push = kp * error
     winding = ((raw > hi) & (push > 0)) | ((raw < lo) & (push < 0))
     return jnp.where(winding, integrator, integrator + dt_s * error), jnp.clip(raw, lo, hi)
 
 
 def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, powers: ControlPowers,
-         state: LawState, pilot, meas: Measurements, max_aileron_rad, dt_s: float):
-    """One sample of the four channels. ``pilot`` is a :class:`~mcfdd.plant.manoeuvres.ManoeuvreInputs`.
+         state: LawState, pilot, meas: Measurements, max_aileron_rad, limits: Authority, dt_s: float, one=1.0):
+    """One sample of the four channels. ``pilot`` is a :class:`~mcfdd.plant.manoeuvres.ManoeuvreInputs`;
+    ``one`` the runtime 1.0 of :func:`mcfdd.compute.once`.
 
     Returns (new state, :class:`Commands` in rad).
     """
@@ -146,18 +154,18 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
         params.path_gain_1_s * (path + pilot.fpa_rad - meas.gamma))
     pitch_int, stabiliser = _pi(state.pitch, q_cmd - body.q, trim.stabiliser,
                                 -1.0 / (params.pitch_time_constant_s * jnp.abs(powers.stabiliser)),
-                                params.pitch_integral_1_s, params.stabiliser_min_rad, params.stabiliser_max_rad, dt_s)
+                                params.pitch_integral_1_s, limits.stabiliser_min_rad, limits.stabiliser_max_rad, dt_s, one)
 
     beta_cmd = pilot.sideslip_rad + params.pedal_sideslip_rad * jnp.clip(pilot.pedal, -1.0, 1.0)
     rudder_per_accel = 1.0 / jnp.abs(powers.rudder)
     damper = rudder_per_accel * params.yaw_damping_1_s * (body.r - g_v * jnp.sin(body.phi) * jnp.cos(body.theta))
     slip_int, rudder = _pi(state.sideslip, beta_cmd - meas.beta, damper, rudder_per_accel * params.sideslip_gain_1_s2,
-                           params.sideslip_integral_1_s3 / params.sideslip_gain_1_s2, -params.rudder_max_rad,
-                           params.rudder_max_rad, dt_s)
+                           params.sideslip_integral_1_s3 / params.sideslip_gain_1_s2, -limits.rudder_max_rad,
+                           limits.rudder_max_rad, dt_s, one)
 
     speed_int, throttle = _pi(state.speed, trim.vcas + pilot.delta_vcas_m_s - meas.vcas, trim.throttle,
                               params.speed_gain_1_s / powers.throttle,
-                              params.speed_integral_1_s2 / params.speed_gain_1_s, params.throttle_min_rad,
-                              params.throttle_max_rad, dt_s)
+                              params.speed_integral_1_s2 / params.speed_gain_1_s, limits.throttle_min_rad,
+                              limits.throttle_max_rad, dt_s, one)
     return (LawState(demand, roll_int, pitch_int, slip_int, speed_int, path),
             Commands(aileron, stabiliser, rudder, throttle))

@@ -42,6 +42,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax.scipy.special import gammainc
 
+from mcfdd.compute import once
+
 from mcfdd.plant.atmosphere import FT_TO_M, KT_TO_M_S
 
 # MIL-F-8785C, Fig. 7: sigma (ft/s) against altitude (ft) for the medium/high-altitude model.
@@ -84,17 +86,20 @@ def intensity(level, altitude_m):
     return _scales(h_ft, 0.1 * w20, sigma_hi)
 
 
-def _scales(h_ft, sigma_w_lo, sigma_hi):
+def _scales(h_ft, sigma_w_lo, sigma_hi, one=None):
     """MIL-F-8785C intensities and scale lengths at ``h_ft`` (ft, at least 10): the low-altitude model
     below 1000 ft (``sigma_w_lo`` = 0.1 W20), the medium/high-altitude one (``sigma_hi``, L = 1750 ft)
-    above 2000 ft, linear in between. Returns (sigma_v m/s, L_v m, sigma_w m/s, L_w m); u as v."""
+    above 2000 ft, linear in between. Returns (sigma_v m/s, L_v m, sigma_w m/s, L_w m); u as v.
+    With ``one`` (every sample, :func:`mcfdd.compute.once`) the shared terms are computed once."""
     h_lo = jnp.minimum(h_ft, 1000.0)
     shape = 0.177 + 0.000823 * h_lo
+    w = jnp.clip((h_ft - 1000.0) / 1000.0, 0.0, 1.0)
+    if one is not None:
+        h_lo, shape, w = once((h_lo, shape, w), one)
     sigma_v_lo = sigma_w_lo / shape**0.4
     length_w_lo = h_lo * FT_TO_M
     length_v_lo = h_lo / shape**1.2 * FT_TO_M
     length_hi = _HIGH_SCALE_FT * FT_TO_M
-    w = jnp.clip((h_ft - 1000.0) / 1000.0, 0.0, 1.0)
 
     def blend(lo, hi):
         return lo + (hi - lo) * w
@@ -223,17 +228,17 @@ def gust_params(level, span_m) -> GustParams:
                       math.pi * jnp.sqrt(0.1 / span) * (math.pi / (4.0 * span)) ** (1.0 / 6.0))
 
 
-def gust_scales(params: GustParams, altitude_m):
+def gust_scales(params: GustParams, altitude_m, one=1.0):
     """(sigma_u = sigma_v m/s, L_u = L_v m, sigma_w m/s, L_w m) at an altitude (m), as :func:`intensity`."""
     h_ft = jnp.maximum(altitude_m / FT_TO_M, 10.0)
     h_hi = jnp.clip(h_ft, 2000.0, _HIGH_KNOTS_FT[-1])
     sigma_hi = params.high[0] + params.high[1] * (h_hi - _HIGH_KNOTS_FT[0])
     for j, knot in enumerate(_HIGH_KNOTS_FT[1:-1]):
         sigma_hi = sigma_hi + params.high[j + 2] * jnp.maximum(h_hi - knot, 0.0)
-    return _scales(h_ft, params.sigma_w_low, sigma_hi)
+    return _scales(h_ft, params.sigma_w_low, once(sigma_hi, one), one)
 
 
-def _second_order(z1, z2, r, decay, n1, n2):
+def _second_order(z1, z2, r, decay, n1, n2, one):
     """Exact step of the normalised Dryden v/w filter over ``r`` time constants (``decay`` = exp(-r)).
 
     In units of its time constant, with states scaled to unit stationary variance, the filter
@@ -252,7 +257,7 @@ def _second_order(z1, z2, r, decay, n1, n2):
     l21 = decay * root_x / (2.0 * root_s)
     q22 = -jnp.expm1(-x) + decay * decay * x * (1.0 - 0.5 * x)
     l22 = jnp.sqrt(jnp.maximum(q22 - l21 * l21, 0.0))
-    a = decay * r * (z1 + z2)
+    l11, l21, l22, a = once((l11, l21, l22, decay * r * (z1 + z2)), one)
     return decay * z1 + a + l11 * n1, decay * z2 - a + l21 * n1 + l22 * n2
 
 
@@ -277,25 +282,27 @@ def gust_init(noise6) -> GustState:
     return GustState(n[0], n[1], n[2], n[3], n[4], n[5], _normalised(n[1], n[2]), _normalised(n[3], n[4]))
 
 
-def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6, dt_s: float):
+def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6, dt_s: float, one=1.0):
     """One sample of the six gust components at the flight point (altitude m, true airspeed m/s).
 
     Returns (new state, :class:`Gust` at the start of the sample). The forming filters are those of
     the flight point of the sample, discretised exactly over it; their states keep unit variance
-    however the point moves, so each gust has the Dryden variance of the current point.
+    however the point moves, so each gust has the Dryden variance of the current point. ``one`` is
+    the runtime 1.0 of :func:`mcfdd.compute.once` (scales and filter coefficients feed several states).
     """
-    sigma_uv, length_uv, sigma_w, length_w = gust_scales(params, altitude_m)
+    sigma_uv, length_uv, sigma_w, length_w = once(gust_scales(params, altitude_m, one), one)
     step_length = dt_s * tas_m_s
     r_uv, r_w, r_p = step_length / length_uv, step_length / length_w, step_length * params.span_rate
     r_r = r_p * (4.0 / 3.0)  # tau_r = 3 b / (pi V)
-    e_uv, e_w, e_p, e_r = jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)
-    zeta_v, zeta_w = _normalised(state.v1, state.v2), _normalised(state.w1, state.w2)
+    r_uv, r_w, r_p, r_r, e_uv, e_w, e_p, e_r = once(
+        (r_uv, r_w, r_p, r_r, jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
+    zeta_v, zeta_w = once((_normalised(state.v1, state.v2), _normalised(state.w1, state.w2)), one)
     gust = Gust(sigma_uv * state.u, sigma_uv * zeta_v, sigma_w * zeta_w,
                 sigma_w * params.p_scale * length_w ** (-1.0 / 3.0) * state.p,
                 -sigma_w * params.span_rate * (zeta_w - state.w_low),
                 sigma_uv * params.span_rate * (4.0 / 3.0) * (zeta_v - state.v_low))
-    v1, v2 = _second_order(state.v1, state.v2, r_uv, e_uv, noise6[1], noise6[2])
-    w1, w2 = _second_order(state.w1, state.w2, r_w, e_w, noise6[3], noise6[4])
+    v1, v2 = once(_second_order(state.v1, state.v2, r_uv, e_uv, noise6[1], noise6[2], one), one)
+    w1, w2 = once(_second_order(state.w1, state.w2, r_w, e_w, noise6[3], noise6[4], one), one)
     new = GustState(_first_order(state.u, r_uv, e_uv, noise6[0]), v1, v2, w1, w2,
                     _first_order(state.p, r_p, e_p, noise6[5]),
                     _low_pass(state.v_low, zeta_v, _normalised(v1, v2), r_r, e_r),
