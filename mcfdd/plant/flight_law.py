@@ -6,18 +6,20 @@ powers (computed by the caller from the measured flight point every sample):
 - roll: the roll-rate law of :mod:`mcfdd.plant.control_law` (stick demands roll rate, neutral
   stick holds bank up to 33 deg, bank protection at 67 deg). In the bank-target mode
   (coordinated turn) and the heading-target mode (bank demand ``atan(V k_psi (psi_t - psi) / g)``
-  limited to ``nav_bank``) the demanded roll rate is ``k_phi (phi_t - phi)``. The demanded roll
-  rate changes by at most ``max_roll_accel`` per second (a mode engaging with a large bank error
-  would otherwise step the aileron command to its stop), then the bank protection limits it.
+  limited to ``nav_bank``) the demanded roll rate is ``k_phi (phi_t - phi)``, changing by at most
+  ``max_roll_accel`` per second (a mode engaging with a large bank error would otherwise step the
+  aileron command to its stop); the stick's demand is the pilot's, as on the roll axis. The bank
+  protection limits either.
 - pitch: the longitudinal stick demands a load-factor increment ``dnz = stick max_dnz``, i.e. a
   pitch rate ``g dnz / V``; with the stick neutral the law holds the flight-path angle it had at
   release (plus the FPA target of the fpa_change manoeuvre) through ``q_c = k_gamma (gamma_t -
   gamma)``, with the pitch rate of a level turn added up to 33 deg of bank. A PI law on the
   pitch-rate error moves the stabiliser, ``k_p = 1 / (tau |M_dt|)``; its integral is a pitch
   attitude hold.
-- yaw: yaw damper on ``r - g sin(phi) cos(theta) / V`` (turn coordination) and a PI law on the
-  sideslip error towards the demanded sideslip (steady-sideslip manoeuvre, pedal), both divided
-  by the rudder power ``|N_dr|``.
+- yaw: yaw damper on ``r - g sin(phi) cos(theta) / V`` (turn coordination), the rudder that holds
+  the demanded sideslip against the directional stiffness (``N_beta beta_c``, feedforward) and a
+  PI law on the sideslip error (steady-sideslip manoeuvre, pedal), all divided by the rudder
+  power ``|N_dr|``.
 - autothrust: a PI law on the calibrated-airspeed error towards the speed target, divided by the
   acceleration per unit throttle.
 
@@ -56,13 +58,15 @@ class FlightLawParams(NamedTuple):
 
 class ControlPowers(NamedTuple):
     """Nominal control powers of the flight point: roll damping L_p (1/s), L_da, M_dt, N_dr (1/s^2),
-    and the acceleration per rad of throttle on both engines (m/s^2)."""
+    the acceleration per rad of throttle on both engines (m/s^2) and the directional stiffness
+    N_beta (1/s^2)."""
 
     roll_damping: jnp.ndarray
     aileron: jnp.ndarray
     stabiliser: jnp.ndarray
     rudder: jnp.ndarray
     throttle: jnp.ndarray
+    sideslip: jnp.ndarray
 
 
 class Measurements(NamedTuple):
@@ -138,10 +142,10 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
     bank_target = jnp.where(pilot.heading_mode, nav_bank, pilot.bank_rad)
     target_rate = jnp.clip(params.bank_gain_1_s * (bank_target - body.phi), -roll.max_roll_rate_rad_s,
                            roll.max_roll_rate_rad_s)
-    demand = jnp.where(pilot.heading_mode | pilot.bank_mode, target_rate,
-                       control_law.roll_rate_demand(roll, pilot.stick, body.phi))
     max_change = params.max_roll_accel_rad_s2 * dt_s
-    demand = state.roll_demand + jnp.clip(demand - state.roll_demand, -max_change, max_change)
+    demand = jnp.where(pilot.heading_mode | pilot.bank_mode,
+                       state.roll_demand + jnp.clip(target_rate - state.roll_demand, -max_change, max_change),
+                       control_law.roll_rate_demand(roll, pilot.stick, body.phi))
     p_cmd = control_law.protect(roll, demand, body.phi)
     gains = control_law.schedule(roll, powers.roll_damping, powers.aileron)
     roll_int, aileron = control_law.step(roll, gains, state.roll, p_cmd, body.p, max_aileron_rad, dt_s)
@@ -158,8 +162,9 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
 
     beta_cmd = pilot.sideslip_rad + params.pedal_sideslip_rad * jnp.clip(pilot.pedal, -1.0, 1.0)
     rudder_per_accel = 1.0 / jnp.abs(powers.rudder)
-    damper = rudder_per_accel * params.yaw_damping_1_s * (body.r - g_v * jnp.sin(body.phi) * jnp.cos(body.theta))
-    slip_int, rudder = _pi(state.sideslip, beta_cmd - meas.beta, damper, rudder_per_accel * params.sideslip_gain_1_s2,
+    damper_rate = params.yaw_damping_1_s * (body.r - g_v * jnp.sin(body.phi) * jnp.cos(body.theta))
+    offset = rudder_per_accel * (damper_rate + powers.sideslip * beta_cmd)
+    slip_int, rudder = _pi(state.sideslip, beta_cmd - meas.beta, offset, rudder_per_accel * params.sideslip_gain_1_s2,
                            params.sideslip_integral_1_s3 / params.sideslip_gain_1_s2, -limits.rudder_max_rad,
                            limits.rudder_max_rad, dt_s, one)
 

@@ -193,14 +193,15 @@ def init(params: RcamRunParams, noise) -> RcamPlantState:
                           zero, params.trim.throttle + zero, flight_law.init(zero), turbulence.gust_init(noise))
 
 
-def _powers(params: RcamRunParams, qbar, tas) -> flight_law.ControlPowers:
-    """Nominal control powers of the healthy aircraft at the measured flight point."""
+def _powers(params: RcamRunParams, qbar, tas, alpha) -> flight_law.ControlPowers:
+    """Nominal control powers of the healthy aircraft at the measured flight point (TP-088-3's C_n_beta(alpha))."""
     b = params.rcam
     roll_damping, aileron_power = aircraft.roll_derivatives(params.aircraft, qbar, tas, b.mass_kg * b.ixx_m2)
     pitch = -qbar * 3.1 * b.tail_area_m2 * b.tail_arm_m / (b.mass_kg * b.iyy_m2)
-    yaw = -0.63 * qbar * b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
+    yaw_scale = qbar * b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
     throttle = 2.0 * b.thrust_mass_kg * b.gravity_m_s2 / b.mass_kg
-    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, yaw, throttle)
+    stiffness = yaw_scale * (1.0 - alpha * (180.0 / (15.0 * math.pi)))
+    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, stiffness)
 
 
 def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, substeps: int,
@@ -227,7 +228,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas)
 
     max_delta = act.max_deflection_rad
-    powers = once(_powers(params, qbar, air.airspeed), one)
+    powers = once(_powers(params, qbar, air.airspeed, air.alpha), one)
     law_state, cmd = flight_law.step(params.law, params.roll, params.law_trim, powers, state.law, pilot, meas,
                                      max_delta, params.authority, dt_s, one)
     cmd = once(cmd, one)
@@ -253,7 +254,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
         rate_m_s=out.rate_m_s, load_fraction=out.load_fraction, jammed=out.jammed, dp_avail_norm=out.dp_avail_norm,
         stall=out.stall, p_rad_s=b.p, phi_rad=b.phi, stick=pilot.stick, nu1=out.nu1, nu2=out.nu2, vcas_m_s=vcas,
         altitude_m=b.altitude, alpha_rad=air.alpha, beta_rad=air.beta, theta_rad=b.theta, q_rad_s=b.q, r_rad_s=b.r,
-        psi_rad=b.psi, nz_g=nz)
+        psi_rad=b.psi, nz_g=nz, stabiliser_rad=state.stabiliser, rudder_rad=state.rudder, throttle_rad=state.throttle)
     surfaces = params.surfaces
     new_state = RcamPlantState(
         act_state, body, follow(surfaces.aileron, state.aileron, delta_c),
