@@ -10,8 +10,9 @@ powers (computed by the caller from the measured flight point every sample):
   ``max_roll_accel`` per second (a mode engaging with a large bank error would otherwise step the
   aileron command to its stop); the stick's demand is the pilot's, as on the roll axis. The bank
   protection limits either.
-- pitch: the longitudinal stick demands a load-factor increment ``dnz = stick max_dnz``, i.e. a
-  pitch rate ``g dnz / V``; with the stick neutral the law holds the flight-path angle it had at
+- pitch: the longitudinal stick demands a load-factor increment ``dnz = stick max_dnz``: a pitch
+  rate ``(g / V) (dnz + k_n (n_turn + dnz - nz))``, the steady pull-up's rate and the measured
+  load factor's error (n_turn = 1 / cos(phi) up to 33 deg of bank); with the stick neutral the law holds the flight-path angle it had at
   release (plus the FPA target of the fpa_change manoeuvre) through ``q_c = k_gamma (gamma_t -
   gamma)``, with the pitch rate of a level turn added up to 33 deg of bank. A PI law on the
   pitch-rate error moves the stabiliser, ``k_p = 1 / (tau |M_dt|)``; its integral is a pitch
@@ -40,6 +41,7 @@ from mcfdd.plant.atmosphere import G0_M_S2
 
 class FlightLawParams(NamedTuple):
     max_load_factor_step: float = 0.3  # g demanded beyond 1 g by full longitudinal stick (no alpha protection)
+    load_factor_gain: float = 3.0  # pitch rate per load-factor error, in units of g / V
     path_gain_1_s: float = 0.6
     pitch_time_constant_s: float = 0.5
     pitch_integral_1_s: float = 1.0
@@ -70,13 +72,15 @@ class ControlPowers(NamedTuple):
 
 
 class Measurements(NamedTuple):
-    """What the law reads: the body state (rates and attitude), air data and flight path (rad, m/s)."""
+    """What the law reads: the body state (rates and attitude), air data, flight path (rad, m/s) and the
+    body normal load factor (g)."""
 
     body: rcam.RcamState
     beta: jnp.ndarray
     gamma: jnp.ndarray
     tas: jnp.ndarray
     vcas: jnp.ndarray
+    nz: jnp.ndarray
 
 
 class Authority(NamedTuple):
@@ -153,8 +157,9 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
     flying = jnp.abs(pilot.pitch_stick) >= params.stick_deadband
     path = jnp.where(flying, meas.gamma, state.path_rad)
     bank = jnp.clip(body.phi, -roll.bank_hold_rad, roll.bank_hold_rad)
+    dnz = params.max_load_factor_step * jnp.clip(pilot.pitch_stick, -1.0, 1.0)
     q_cmd = g_v * jnp.sin(bank) * jnp.tan(bank) + jnp.where(
-        flying, g_v * params.max_load_factor_step * jnp.clip(pilot.pitch_stick, -1.0, 1.0),
+        flying, g_v * (dnz + params.load_factor_gain * (1.0 / jnp.cos(bank) + dnz - meas.nz)),
         params.path_gain_1_s * (path + pilot.fpa_rad - meas.gamma))
     pitch_int, stabiliser = _pi(state.pitch, q_cmd - body.q, trim.stabiliser,
                                 -1.0 / (params.pitch_time_constant_s * jnp.abs(powers.stabiliser)),

@@ -226,13 +226,13 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,
-         gust: Gust = CALM, one=1.0, body: Body | None = None):
+         gust: Gust = CALM, one=1.0, body: Body | None = None, k1: RcamState | None = None):
     """One classical Runge-Kutta step of ``dt_s`` with controls, density and gusts held.
 
     ``one`` is the runtime 1.0 of :func:`mcfdd.compute.once`: each stage's derivatives and state
     feed every component of the next stage and the final sum, so each is computed once; ``body``
-    the run's :func:`body_constants` (computed here when not given).
-    Returns (new state, derivatives at the start of the step).
+    the run's :func:`body_constants` and ``k1`` the derivatives at the start (both computed here
+    when not given). Returns (new state, derivatives at the start of the step).
     """
     body = body_constants(params) if body is None else body
 
@@ -242,7 +242,7 @@ def step(params: RcamParams, state: RcamState, controls: RcamControls, density_k
     def add(x, k, h):
         return once(jax.tree.map(lambda a, b: a + h * b, x, k), one)
 
-    k1 = f(state)
+    k1 = f(state) if k1 is None else k1
     k2 = f(add(state, k1, 0.5 * dt_s))
     k3 = f(add(state, k2, 0.5 * dt_s))
     k4 = f(add(state, k3, dt_s))

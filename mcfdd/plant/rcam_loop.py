@@ -225,7 +225,15 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     climb = b.u * sth - (b.v * sphi + b.w * cphi) * cth
     gamma = jnp.arcsin(jnp.clip(climb / speed, -1.0, 1.0))
     air, vcas, qbar, density, gamma = once((air, vcas, qbar, density, gamma), one)
-    meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas)
+
+    # the surfaces where the sample starts (the monitored aileron at its rod, its power scaled by nu2)
+    delta = state.actuator.x_m / act.r_arm_m
+    aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, actuator.active_nu(params.fault, t_s)[1])
+    controls = once(rcam.RcamControls(aileron, state.stabiliser, state.rudder, state.throttle, state.throttle), one)
+    rates = once(rcam.derivatives(params.rcam, b, controls, density, gust, one, params.body), one)
+    g = params.rcam.gravity_m_s2
+    nz = once(-(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g, one)
+    meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
     powers = once(_powers(params, qbar, air.airspeed, air.alpha), one)
@@ -238,17 +246,12 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     s = params.surface
     table_alpha = aircraft.trim_alpha(params.aircraft, qbar)
     alpha_load = -qbar * s.area_m2 * s.chord_m * s.ch_alpha * (air.alpha - params.rcam.alpha_l0_rad - table_alpha)
-    load, slope = hinge.point_line(params.table, vcas, b.altitude, state.actuator.x_m / act.r_arm_m, one)
+    load, slope = hinge.point_line(params.table, vcas, b.altitude, delta, one)
     line = once(((load + alpha_load / act.r_arm_m) * params.hinge_scale, slope * params.hinge_scale), one)
     act_state, out = actuator.advance(act, params.fault, line, state.actuator, u_c, t_s, dt_s, substeps, one)
     out = once(out, one)
-    delta = out.x_m / act.r_arm_m
-    aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, out.nu2)
-    controls = once(rcam.RcamControls(aileron, state.stabiliser, state.rudder, state.throttle, state.throttle), one)
-    body, rates = rcam.step(params.rcam, b, controls, density, dt_s, gust, one, params.body)
+    body, _ = rcam.step(params.rcam, b, controls, density, dt_s, gust, one, params.body, rates)
 
-    g = params.rcam.gravity_m_s2
-    nz = -(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g
     outputs = RcamOutputs(
         u_c_m=u_c, u_m=out.x_m + params.noise_std_m * noise[turbulence.GUST_NORMALS], x_m=out.x_m, delta_rad=delta,
         rate_m_s=out.rate_m_s, load_fraction=out.load_fraction, jammed=out.jammed, dp_avail_norm=out.dp_avail_norm,
