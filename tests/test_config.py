@@ -163,6 +163,7 @@ EXPECTED_KIND = {"fault_free": "campaign", "loe_campaign": "campaign", "stall_ca
                  "tune_loe": "tune", "tune_stall": "tune", "worst_case_stall": "worst-case",
                  "worst_case_stall_detect": "worst-case", "rcam_campaign": "campaign",
                  "rcam_campaign_roll_axis": "campaign", "rcam_simulate": "simulate", "validation": "campaign",
+                 "validation_rcam": "campaign",
                  "validation_kci10": "campaign"}
 
 

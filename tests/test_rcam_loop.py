@@ -183,3 +183,32 @@ def test_the_aileron_works_as_hard_as_on_the_roll_axis(flown):
     load = (np.asarray(out.load_fraction[0]).max(), full.load_fraction.max())
     assert peak[1] > 0.85 * peak[0] and math.degrees(peak[1]) > 15.0
     assert load[1] > 0.85 * load[0]
+
+
+def test_a_run_does_not_depend_on_its_place_in_the_campaign_batch():
+    """The campaign program (float32, its XLA CPU options) on 128 copies of one scenario of each navigation
+    and piloted family: every copy gives the same outcomes to the last bit. XLA CPU's 512-bit atan2 of a
+    constant gave lane-dependent results (the heading mode's bank demand was atan of one argument), so a
+    heading change depended on its chunk."""
+    from mcfdd import config
+    from mcfdd.analysis import campaign
+    from mcfdd.workflows import campaign as runner
+    from mcfdd.workflows.common import precision
+
+    with precision("float32"):
+        cfg = config.parse(config.CampaignConfig, {
+            "campaign": {"scenarios": 3, "duration_s": 12.0, "design": "random", "grid": ["manoeuvre_kind"]},
+            "evaluation": {"settle_s": 1.0},
+            "plant": {"aircraft": {"model": "rcam"}},
+            "space": {"vcas_kt": [180.0, 240.0], "altitude_m": [500.0, 4000.0], "turbulence": "moderate",
+                      "manoeuvre_kind": ["heading_change", "coordinated_turn", "doublet"], "heading_change_deg": 60.0,
+                      "bank_deg": 30.0, "amplitude": 1.0, "t_start_s": 2.0, "fault_kind": "disconnection",
+                      "fault_onset_s": 1.0}})
+        setup = runner.campaign_setup(cfg)
+        for scenario in range(setup.n):
+            inputs = runner.chunk_inputs(setup, cfg.campaign.seed, np.full(128, scenario), 128)
+            raw = campaign.device_batch(setup.model, setup.fdd_params, setup.settings, *inputs, 1200, 0.01, 2,
+                                        setup.kinds)
+            for name, value in raw.items():
+                value = np.asarray(value)
+                assert np.array_equal(value, np.repeat(value[:1], len(value), axis=0), equal_nan=True), (scenario, name)

@@ -141,7 +141,9 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
     body, g_v = meas.body, G0_M_S2 / meas.tas
     heading_error = jnp.arctan2(jnp.sin(pilot.heading_change_rad - body.psi),
                                 jnp.cos(pilot.heading_change_rad - body.psi))
-    nav_bank = jnp.clip(jnp.arctan(params.heading_gain_1_s * heading_error / g_v), -params.nav_bank_rad,
+    # atan(V k_psi e / g) as atan2 of two variables: XLA CPU's vectorised atan2 of a constant gives results that
+    # depend on the lane at 512-bit vectors (the campaign's compiler options), so a run would depend on its batch
+    nav_bank = jnp.clip(jnp.arctan2(params.heading_gain_1_s * heading_error, g_v), -params.nav_bank_rad,
                         params.nav_bank_rad)
     bank_target = jnp.where(pilot.heading_mode, nav_bank, pilot.bank_rad)
     target_rate = jnp.clip(params.bank_gain_1_s * (bank_target - body.phi), -roll.max_roll_rate_rad_s,
