@@ -176,7 +176,7 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     chord_v = c / speed
     ca, sa = jnp.cos(alpha), jnp.sin(alpha)
     alpha, beta, speed, qs_m, chord_v, ca, sa = once((alpha, beta, speed, qs_m, chord_v, ca, sa), one)
-    p_air, q_air, r_air = state.p - gust.p, state.q - gust.q, state.r - gust.r
+    p_air, q_air, r_air = once((state.p - gust.p, state.q - gust.q, state.r - gust.r), one)
 
     tail_incidence = (controls.stabiliser + params.downwash_slope * params.alpha_l0_rad
                       + (1.0 - params.downwash_slope) * alpha)  # alpha - eps + delta_t
@@ -197,9 +197,11 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
            + chord_v * (1.7 * p_air - 11.5 * r_air))
     dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
     t1, t2 = controls.throttle1 * body.thrust_per_mass, controls.throttle2 * body.thrust_per_mass
+    thrust, thrust_m, thrust_n = once((t1 + t2, (params.z_cg_m - params.engine_z_m) * (t1 + t2),
+                                       params.engine_y_m * (t1 - t2)), one)  # the same in every stage
     moment_l = qs_m * c * roll + ay * dz  # moments per unit mass
-    moment_m = qs_m * c * pitch + az * dx - ax * dz + (params.z_cg_m - params.engine_z_m) * (t1 + t2)
-    moment_n = qs_m * c * yaw - ay * dx + params.engine_y_m * (t1 - t2)
+    moment_m = qs_m * c * pitch + az * dx - ax * dz + thrust_m
+    moment_n = qs_m * c * yaw - ay * dx + thrust_n
     ax, ay, az, moment_l, moment_m, moment_n = once((ax, ay, az, moment_l, moment_m, moment_n), one)
 
     g = params.gravity_m_s2
@@ -208,7 +210,7 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     spsi, cpsi = jnp.sin(state.psi), jnp.cos(state.psi)
     sphi, cphi, sth, cth = once((sphi, cphi, sth, cth), one)
     u, v, w, p, q, r = state.u, state.v, state.w, state.p, state.q, state.r
-    udot = (t1 + t2) + ax - g * sth - (q * w - r * v)
+    udot = thrust + ax - g * sth - (q * w - r * v)
     vdot = ay + g * cth * sphi - (r * u - p * w)
     wdot = az + g * cth * cphi - (p * v - q * u)
     pdot = body.l_l * moment_l + body.l_n * moment_n + (body.p_p * p + body.p_r * r) * q
