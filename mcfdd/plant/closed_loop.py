@@ -153,13 +153,13 @@ def noise_dims(model) -> tuple[int, int]:
     return INIT_NOISE_DIM, NOISE_DIM
 
 
-def init(params: RunParams, noise3) -> PlantState:
+def init(params: RunParams, noise) -> PlantState:
     """Trimmed wings-level start; turbulence from its stationary distribution (:func:`noise_dims` normals)."""
     if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.init(params, noise3)
+        return rcam_loop.init(params, noise)
     zero = jnp.zeros_like(params.qbar_pa)
     return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
-                      turbulence.init(params.turbulence, noise3))
+                      turbulence.init(params.turbulence, noise))
 
 
 def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 2,

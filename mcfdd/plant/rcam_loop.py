@@ -6,7 +6,8 @@
 
 1. pilot and navigation inputs of the manoeuvre; the six Dryden gusts at the current altitude
    and speed (:func:`mcfdd.plant.turbulence.gust_step`);
-2. air data in the gusts: true and calibrated airspeed, altitude, alpha, beta, flight path;
+2. air data in the gusts: true and calibrated airspeed, altitude, alpha, beta, flight path; the
+   rigid body's derivatives with the surfaces where the sample starts, hence the load factor;
 3. the flight law (:mod:`mcfdd.plant.flight_law`) with gains scheduled on the measured qbar
    turns them into aileron, stabiliser, rudder and throttle commands; u_c = delta_a r_arm
    (open-loop families drive the actuator directly, as on the roll axis);
@@ -17,7 +18,8 @@
 5. the other surfaces follow their commands as first-order actuators with the position and
    rate limits of :class:`Surfaces` (the other aileron as a healthy twin of the monitored
    actuator); the roll power of the monitored aileron is scaled by nu2;
-6. the rigid body advances one Runge-Kutta step with those surfaces and the gusts held.
+6. the rigid body advances one Runge-Kutta step with the surfaces and the gusts held (its first
+   stage the derivatives of 2).
 
 Quantities that several later parts of the step read (pilot inputs, gusts, air data, law
 commands, the actuator's outputs, each Runge-Kutta stage) are computed once
