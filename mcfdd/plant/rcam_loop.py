@@ -35,7 +35,10 @@ Surfaces (TP-088-3, the RCAM report's actuator limits; S public, D derived, A as
 | throttles, engine thrust | 0.5 .. 10 S | 1.6 S | 1.5 A (engine lag) |
 | other aileron (twin of the monitored one) | +-25 S | 100 D (Kci i_max / r_arm) | 0.04 D (1 / (Kci Kp)) |
 
-The two engines receive the same command and start at the same trim, so one state serves both.
+The position limits are also those of the public RCAM transcriptions; the rate limits and the
+0.15 s time constant are the report's actuator data as quoted from it (not re-read from the PDF
+in this change). The two engines receive the same command and start at the same trim, so one
+state serves both.
 """
 
 from __future__ import annotations
