@@ -428,7 +428,7 @@ def peer_functions(p: Problem, n_steps: int):
         return campaign.init_one(model, fdd_params, scenario, key, dt_s)
 
     def step_one(fdd_params, settings, params, scenario, truth, carry, key, k):
-        normals = noise.normals(noise.key_words(key), k, closed_loop.NOISE_DIM, jnp.result_type(float))
+        normals = noise.normals(noise.key_words(key), k, closed_loop.noise_dims(params)[1], jnp.result_type(float))
         return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, normals, dt_s, substeps,
                                  kinds)[0]
 
@@ -613,8 +613,9 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
 
         def body(state, k):
             (plant_state, fdd_state, red), acc = state
-            draws = (jnp.full(closed_loop.NOISE_DIM, 0.5, params.qbar_pa.dtype) if stage == 4 else
-                     noise.normals(words, k, closed_loop.NOISE_DIM, params.qbar_pa.dtype))
+            dim = closed_loop.noise_dims(model)[1]
+            draws = (jnp.full(dim, 0.5, params.qbar_pa.dtype) if stage == 4 else
+                     noise.normals(words, k, dim, params.qbar_pa.dtype))
             if stage == 0:
                 return ((plant_state, fdd_state, red), acc + draws.sum()), None
             if stage >= 3:

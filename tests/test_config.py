@@ -67,7 +67,7 @@ BAD = [
     ("speed above the envelope", ("runs", 1, "vcas_kt"), 500.0, "runs[1].vcas_kt"),
     ("unknown fault kind", ("runs", 0, "fault", "kind"), "leak", "runs[0].fault.kind"),
     ("unknown manoeuvre kind", ("runs", 1, "manoeuvre", "kind"), "barrel_roll", "runs[1].manoeuvre.kind"),
-    ("unknown turbulence", ("runs", 0, "turbulence"), "severe", "runs[0].turbulence"),
+    ("unknown turbulence", ("runs", 0, "turbulence"), "extreme", "runs[0].turbulence"),
     ("unknown precision", ("simulation", "precision"), "float16", "simulation.precision"),
     ("duplicate run names", ("runs", 1, "name"), "a", "runs[1].name"),
     ("no runs", ("runs",), [], "runs"),
@@ -138,8 +138,8 @@ def test_range_and_choices_are_named():
     with pytest.raises(config.ConfigError, match=re.escape("runs[1].vcas_kt: 500.0 is outside the allowed range "
                                                            "[80.0, 420.0]")):
         config.parse(config.SimulateConfig, bad)
-    bad = _edit(_valid(), ("runs", 0, "turbulence"), "severe")
-    with pytest.raises(config.ConfigError, match="expected one of 'none', 'light', 'moderate'"):
+    bad = _edit(_valid(), ("runs", 0, "turbulence"), "extreme")
+    with pytest.raises(config.ConfigError, match="expected one of 'none', 'light', 'moderate', 'severe'"):
         config.parse(config.SimulateConfig, bad)
 
 
@@ -163,6 +163,7 @@ EXPECTED_KIND = {"fault_free": "campaign", "loe_campaign": "campaign", "stall_ca
                  "tune_loe": "tune", "tune_stall": "tune", "worst_case_stall": "worst-case",
                  "worst_case_stall_detect": "worst-case", "rcam_campaign": "campaign",
                  "rcam_campaign_roll_axis": "campaign", "rcam_simulate": "simulate", "validation": "campaign",
+                 "validation_rcam": "campaign",
                  "validation_kci10": "campaign"}
 
 
@@ -294,7 +295,7 @@ def test_shipped_configs_validate_against_their_json_schema(name):
     lambda d: d.update(campain={}),
     lambda d: d["space"].update(vcas_k=[200.0, 300.0]),
     lambda d: d["space"].update(vcas_kt={"range": [200.0, 300.0], "m": 3}),
-    lambda d: d["space"].update(turbulence=["light", "severe"]),
+    lambda d: d["space"].update(turbulence=["light", "extreme"]),
     lambda d: d["campaign"].update(scenarios="8"),
     lambda d: d["space"].update(kd_scale=[0.5, 1.0, 2.0]),
 ])

@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 from mcfdd import cli, config
 from mcfdd.analysis import batch, build, campaign, scenarios, simulate
 from mcfdd.fdd import system
-from mcfdd.plant import atmosphere, closed_loop, rcam
+from mcfdd.plant import atmosphere, closed_loop, rcam, turbulence
 from mcfdd.workflows.common import load_bank
 
 P = rcam.RcamParams()
@@ -20,14 +20,17 @@ APPROACH_TAS = 80.0
 APPROACH_H = 1000.0 * atmosphere.FT_TO_M
 
 
-def reference_derivatives(x, u, rho, v_gust=0.0, p_gust=0.0):
-    """TP-088-3 in matrix form: stability-to-body rotation, cross products, inertia solve, DCM."""
+def reference_derivatives(x, u, rho, gust=(0.0,) * 6):
+    """TP-088-3 in matrix form: stability-to-body rotation, cross products, inertia solve, DCM.
+
+    ``gust``: (u, v, w) gust velocity and (p, q, r) gust rates in body axes, subtracted from the
+    body's velocity and rates wherever the air sees them (aerodynamic angles, speed, rate terms)."""
     cbar, lt, s, st, m, g = 6.6, 24.8, 260.0, 64.0, 120000.0, 9.81
     vel, omega = np.array(x[0:3]), np.array(x[3:6])
     phi, theta, psi = x[6:9]
     da, dt, dr, th1, th2 = u
-    v_air = vel - np.array([0.0, v_gust, 0.0])
-    omega_air = omega - np.array([p_gust, 0.0, 0.0])
+    v_air = vel - np.array(gust[:3])
+    omega_air = omega - np.array(gust[3:])
     va = np.linalg.norm(v_air)
     alpha = math.atan2(v_air[2], v_air[0])
     beta = math.asin(v_air[1] / va)
@@ -37,7 +40,7 @@ def reference_derivatives(x, u, rho, v_gust=0.0, p_gust=0.0):
     else:
         cl_wb = -768.5 * alpha**3 + 609.2 * alpha**2 - 155.2 * alpha + 15.212
     eps = 0.25 * (alpha - math.radians(-11.5))
-    cl = cl_wb + 3.1 * (st / s) * (alpha - eps + dt + 1.3 * omega[1] * lt / va)
+    cl = cl_wb + 3.1 * (st / s) * (alpha - eps + dt + 1.3 * omega_air[1] * lt / va)
     cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
     cy = -1.6 * beta + 0.24 * dr
     c_bs = np.array([[math.cos(alpha), 0.0, -math.sin(alpha)], [0.0, 1.0, 0.0],
@@ -83,8 +86,8 @@ def _controls(u):
     return rcam.RcamControls(*[jnp.asarray(v) for v in u])
 
 
-def _module_derivatives(x, u, rho, v_gust=0.0, p_gust=0.0):
-    return np.array(rcam.derivatives(P, _state(x), _controls(u), rho, v_gust, p_gust))
+def _module_derivatives(x, u, rho, gust=(0.0,) * 6):
+    return np.array(rcam.derivatives(P, _state(x), _controls(u), rho, turbulence.Gust(*gust)))
 
 
 def _random_point(rng):
@@ -102,9 +105,9 @@ def test_derivatives_match_the_independent_model_at_random_states():
     for _ in range(40):
         x, u = _random_point(rng)
         rho = rng.uniform(0.4, 1.225)
-        gusts = (0.0, 0.0) if rng.random() < 0.5 else (rng.uniform(-5, 5), rng.uniform(-0.05, 0.05))
-        ref = reference_derivatives(x, u, rho, *gusts)
-        got = _module_derivatives(x, u, rho, *gusts)
+        gust = (0.0,) * 6 if rng.random() < 0.3 else tuple(rng.uniform(-5, 5, 3)) + tuple(rng.uniform(-0.05, 0.05, 3))
+        ref = reference_derivatives(x, u, rho, gust)
+        got = _module_derivatives(x, u, rho, gust)
         high_alpha += math.atan2(x[2], x[0]) > math.radians(14.5)
         np.testing.assert_allclose(got, ref, rtol=1e-11, atol=1e-10)
     assert high_alpha > 0, "the post-stall branch of CL_wb was not exercised"

@@ -287,7 +287,7 @@ def init_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenar
              dt_s: float):
     """Plant parameters and the scan carry (plant, FDD and reduction states) of one scenario at t = 0."""
     params = closed_loop.prepare(model, scenario, dt_s)
-    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    plant_state = closed_loop.init(params, jax.random.normal(key, (closed_loop.noise_dims(model)[0],)))
     zero = jnp.zeros_like(params.qbar_pa)
     fdd_state = system.init(fdd_params, zero)
     return params, (plant_state, fdd_state, reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype))
@@ -314,7 +314,7 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
     def body(carry, k, noise):
         return step_one(params, fdd_params, settings, scenario, truth, carry, k, noise, dt_s, substeps, kinds)[0], None
 
-    (_, _, red), _ = scan_steps(body, carry, key, n_steps, closed_loop.NOISE_DIM)
+    (_, _, red), _ = scan_steps(body, carry, key, n_steps, closed_loop.noise_dims(model)[1])
     return finalize(settings, red, n_steps * dt_s)
 
 

@@ -54,12 +54,13 @@ def plant_history(model: closed_loop.PlantModel, scenario: closed_loop.Scenario,
                   dt_s: float, substeps: int, kinds: tuple[int, ...]):
     """Time history of one run: :class:`~mcfdd.plant.closed_loop.PlantOutputs` with leading axis n_steps."""
     params = closed_loop.prepare(model, scenario, dt_s)
-    state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    init_dim, step_dim = closed_loop.noise_dims(model)
+    state = closed_loop.init(params, jax.random.normal(key, (init_dim,)))
 
     def body(state, k, noise):
         return closed_loop.step(params, state, sample_time(k, dt_s), noise, dt_s, substeps, kinds)
 
-    return scan_steps(body, state, key, n_steps, closed_loop.NOISE_DIM)[1]
+    return scan_steps(body, state, key, n_steps, step_dim)[1]
 
 
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
@@ -72,7 +73,8 @@ def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, sce
                 n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...]):
     """Plant and FDD together over one run: (PlantOutputs, FddOutputs), leading axis n_steps."""
     params = closed_loop.prepare(model, scenario, dt_s)
-    plant_state = closed_loop.init(params, jax.random.normal(key, (3,)))
+    init_dim, step_dim = closed_loop.noise_dims(model)
+    plant_state = closed_loop.init(params, jax.random.normal(key, (init_dim,)))
     zero = jnp.zeros_like(params.qbar_pa)
     fdd_state = system.init(fdd_params, zero)
 
@@ -84,7 +86,7 @@ def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, sce
                                          t, dt_s)
         return (plant_state, fdd_state), (out, fdd_out)
 
-    return scan_steps(body, (plant_state, fdd_state), key, n_steps, closed_loop.NOISE_DIM)[1]
+    return scan_steps(body, (plant_state, fdd_state), key, n_steps, step_dim)[1]
 
 
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))

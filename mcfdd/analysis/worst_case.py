@@ -344,7 +344,7 @@ def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, setti
         return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], t, out, fo)), None
 
     ((_, _, red), acc), _ = scan_steps(body, (carry, soft_init(params.qbar_pa.dtype)), key, n_steps,
-                                       closed_loop.NOISE_DIM)
+                                       closed_loop.noise_dims(model)[1])
     outcomes = campaign.finalize(settings, red, n_steps * dt_s)
     return soft_finalize(acc, red, outcomes, temperature), outcomes, x
 

@@ -161,12 +161,19 @@ def step(params: ActuatorParams, fault: ActuatorFault, delta_grid_rad, load_slic
     and each sub-step feed several later stages).
     Returns (new state, :class:`ActuatorOutputs` at the start of the step).
     """
+    line = once(hinge.local_line(delta_grid_rad, load_slice_n, state.x_m / params.r_arm_m), one)
+    return advance(params, fault, line, state, u_c_m, t_s, dt_s, substeps, one)
+
+
+def advance(params: ActuatorParams, fault: ActuatorFault, line, state: ActuatorState, u_c_m, t_s, dt_s: float,
+            substeps: int, one=ONE):
+    """:func:`step` on the hinge-load line of the rod's table cell, ``line`` = (load N at the rod, slope N/rad)."""
     nu1, nu2 = active_nu(fault, t_s)
     jammed = t_s >= fault.jam_onset_s
     x_max = params.r_arm_m * params.max_deflection_rad
 
     x0 = state.x_m
-    load0, slope = once(hinge.local_line(delta_grid_rad, load_slice_n, x0 / params.r_arm_m), one)
+    load0, slope = line
     k0, a0 = once(gain(params, nu1, nu2, load0, x0, u_c_m), one)
     e0 = u_c_m - x0
     t_sat, travel, rate_end = _saturated_travel(params, nu2, slope, k0 * jnp.abs(e0), jnp.abs(e0), dt_s, one)

@@ -11,4 +11,5 @@ MANOEUVRE_KINDS = ("quiet", "doublet", "bank_to_bank", "roll_protection", "sides
 OPEN_LOOP_KINDS = tuple(k for k in MANOEUVRE_KINDS if k.startswith("ol_"))  # drive the actuator command directly
 FULL_AIRCRAFT = ("pitch_doublet", "pedal_doublet", "nose_up", "nose_down", "fpa_change", "heading_change",
                  "speed_change", "coordinated_turn")  # families that only the rcam aircraft can fly
-TURBULENCE_LEVELS = {"none": 0.0, "light": 1.0, "moderate": 2.0}  # the traced level of each (turbulence.py)
+# the traced level of each (turbulence.py)
+TURBULENCE_LEVELS = {"none": 0.0, "light": 1.0, "moderate": 2.0, "severe": 3.0}

@@ -35,6 +35,7 @@ from mcfdd.plant.signals import PlantOutputs
 from mcfdd.plant.uncertainty import scaled
 
 DT_S = 0.01
+INIT_NOISE_DIM = 3  # normals at the start: the turbulence filters' states
 NOISE_DIM = 4  # normals per step: three for turbulence, one for the position sensor
 
 
@@ -140,18 +141,26 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
     )
 
 
-def init(params: RunParams, noise3) -> PlantState:
-    """Trimmed wings-level start; turbulence from its stationary distribution (3 normals)."""
+def noise_dims(model) -> tuple[int, int]:
+    """(normals at the start, normals per step) of a model's runs (a model or its run parameters):
+    (3, 4) on the roll axis, (6, 7) on the full aircraft (six gust components)."""
+    if isinstance(model, (rcam_loop.RcamModel, rcam_loop.RcamRunParams)):
+        return rcam_loop.INIT_NOISE_DIM, rcam_loop.NOISE_DIM
+    return INIT_NOISE_DIM, NOISE_DIM
+
+
+def init(params: RunParams, noise) -> PlantState:
+    """Trimmed wings-level start; turbulence from its stationary distribution (:func:`noise_dims` normals)."""
     if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.init(params, noise3)
+        return rcam_loop.init(params, noise)
     zero = jnp.zeros_like(params.qbar_pa)
     return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
-                      turbulence.init(params.turbulence, noise3))
+                      turbulence.init(params.turbulence, noise))
 
 
 def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 2,
          kinds: tuple[int, ...] = tuple(range(len(manoeuvres.KINDS)))):
-    """One sample of the closed loop. ``noise`` holds NOISE_DIM standard normals.
+    """One sample of the closed loop. ``noise`` holds the step's normals (:func:`noise_dims`).
 
     Returns (new state, :class:`PlantOutputs` at time ``t_s``).
     """

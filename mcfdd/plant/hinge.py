@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mcfdd.compute import once
 from mcfdd.plant import atmosphere
 
 
@@ -91,6 +92,22 @@ def local_line(delta_grid_rad, load_slice_n, delta_rad):
     k, w = _cell(delta_grid_rad, delta_rad)
     lo, hi = load_slice_n[k], load_slice_n[k + 1]
     return lo + (hi - lo) * w, (hi - lo) / (delta_grid_rad[1] - delta_grid_rad[0])
+
+
+def point_line(table: HingeTable, vcas_m_s, altitude_m, delta_rad, one=1.0):
+    """:func:`local_line` of the slice at (Vcas, h), built from the two delta nodes of its cell only.
+
+    The same numbers as ``local_line(table.delta_rad, flight_point_slice(table, vcas, h), delta)``
+    for a flight point that moves every sample (the full aircraft): the 2 x 2 x 2 table entries
+    around the point (one slice read) instead of the whole delta slice; the cells are computed
+    once (``one``: :func:`mcfdd.compute.once`). Returns (load N, slope N/rad).
+    """
+    i, wv, j, wh, k, wd = once((*_cell(table.vcas_m_s, vcas_m_s), *_cell(table.altitude_m, altitude_m),
+                                *_cell(table.delta_rad, delta_rad)), one)
+    block = jax.lax.dynamic_slice(table.load_n, (i, j, k), (2, 2, 2))
+    by_h = block[:, 0] * (1.0 - wh) + block[:, 1] * wh
+    lo, hi = by_h[0] * (1.0 - wv) + by_h[1] * wv
+    return lo + (hi - lo) * wd, (hi - lo) / (table.delta_rad[1] - table.delta_rad[0])
 
 
 def interpolate(table: HingeTable, vcas_m_s, altitude_m, delta_rad):

@@ -41,6 +41,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from mcfdd.compute import once
 from mcfdd.plant.choices import MANOEUVRE_KINDS as KINDS, OPEN_LOOP_KINDS
 
 KIND_CODE = {name: code for code, name in enumerate(KINDS)}
@@ -123,12 +124,17 @@ def _profile(code: int, m: ManoeuvreParams, t):
     return m.amplitude * window * jnp.clip(total / _MULTISINE_PEAK, -1.0, 1.0)
 
 
-def inputs(m: ManoeuvreParams, t_s, kinds: tuple[int, ...]) -> ManoeuvreInputs:
-    """Pilot inputs at time ``t_s`` for a manoeuvre whose family is one of the static ``kinds``."""
+def inputs(m: ManoeuvreParams, t_s, kinds: tuple[int, ...], one=None) -> ManoeuvreInputs:
+    """Pilot inputs at time ``t_s`` for a manoeuvre whose family is one of the static ``kinds``.
+
+    With ``one`` (:func:`mcfdd.compute.once`) the profile, which every channel reads, is computed once.
+    """
     t = t_s - m.t_start_s
     value = jnp.zeros_like(jnp.asarray(t, dtype=jnp.result_type(float)))
     for code in kinds:
         value = jnp.where(m.kind == code, _profile(code, m, t), value)
+    if one is not None:
+        value = once(value, one)
     open_loop = jnp.zeros_like(value, dtype=bool)
     for code in OPEN_LOOP & set(kinds):
         open_loop = open_loop | (m.kind == code)

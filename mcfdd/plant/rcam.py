@@ -24,11 +24,14 @@ moments about the aerodynamic centre, transferred to the centre of gravity with 
 lever ``(X_cg - X_apt, Y_apt - Y_cg, Z_cg - Z_apt)``. Density comes from the caller (ISA at the
 altitude, held over a step) instead of the report's sea-level constant, so the model serves as a
 generic transport over an envelope; it is only validated near its approach point (80 m/s, 1000 ft).
-Turbulence enters as a lateral gust velocity and a roll-rate gust in the air-relative motion.
+Turbulence (:class:`mcfdd.plant.turbulence.Gust`, body axes) enters the air-relative motion:
+the aerodynamic forces and moments see the velocity (u - u_g, v - v_g, w - w_g) and the rates
+(p - p_g, q - q_g, r - r_g); the kinematics and the inertial terms see the body's own motion.
 
 :func:`derivatives` is the pure right-hand side for one aircraft; :func:`step` one classical
-Runge-Kutta step with the controls held; :func:`trim` a batched-by-vmap Newton solve of level
-flight at (Vcas, h, mass). Everything is written for one scenario and safe in float32.
+Runge-Kutta step with the controls and the gusts held (each stage's derivatives and state computed
+once, :func:`mcfdd.compute.once`); :func:`trim` a batched-by-vmap Newton solve of level flight at
+(Vcas, h, mass). Everything is written for one scenario and safe in float32.
 """
 
 from __future__ import annotations
@@ -39,7 +42,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from mcfdd.compute import once
 from mcfdd.plant import atmosphere
+from mcfdd.plant.turbulence import Gust
+
+CALM = Gust(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 class RcamParams(NamedTuple):
@@ -103,11 +110,12 @@ class AirData(NamedTuple):
     beta: jnp.ndarray
 
 
-def air_data(state: RcamState, v_gust_m_s=0.0) -> AirData:
-    """Air-relative speed, alpha and beta of the state in a lateral gust ``v_gust`` (body y)."""
-    v_air = state.v - v_gust_m_s
-    speed = jnp.sqrt(state.u**2 + v_air**2 + state.w**2)
-    return AirData(speed, jnp.arctan2(state.w, state.u), jnp.arcsin(jnp.clip(v_air / speed, -1.0, 1.0)))
+def air_data(state: RcamState, gust: Gust = CALM) -> AirData:
+    """Air-relative speed, alpha and beta of the state in a gust (body axes)."""
+    u_air, v_air, w_air = state.u - gust.u, state.v - gust.v, state.w - gust.w
+    along_sq = u_air**2 + w_air**2
+    speed = jnp.sqrt(along_sq + v_air**2)
+    return AirData(speed, jnp.arctan2(w_air, u_air), jnp.arctan2(v_air, jnp.sqrt(along_sq)))  # beta = asin(v / V)
 
 
 def lift_wing_body(params: RcamParams, alpha):
@@ -118,58 +126,96 @@ def lift_wing_body(params: RcamParams, alpha):
     return jnp.where(alpha <= params.alpha_switch_rad, linear, cubic)
 
 
+class Body(NamedTuple):
+    """Per-run constants of the equations of motion (from :class:`RcamParams`; mass and inertia may be sampled).
+
+    Euler's equations ``I w_dot = M - w x I w`` with ``I = m [[a, 0, e], [0, b, 0], [e, 0, c]]`` and
+    the moments per unit mass (L, M, N) solve to
+    ``p_dot = l_l L + l_n N + (p_p p + p_r r) q``, ``q_dot = m_m M + q_pr p r + q_pp (p^2 - r^2)``,
+    ``r_dot = n_l L + n_n N + (r_p p + r_r r) q`` (``n_l = l_n``).
+    """
+
+    inv_mass: jnp.ndarray  # 1/kg
+    thrust_per_mass: jnp.ndarray  # m/s^2 per rad of throttle: m_ref g / m
+    l_l: jnp.ndarray
+    l_n: jnp.ndarray
+    p_p: jnp.ndarray
+    p_r: jnp.ndarray
+    m_m: jnp.ndarray
+    q_pr: jnp.ndarray
+    q_pp: jnp.ndarray
+    n_n: jnp.ndarray
+    r_p: jnp.ndarray
+    r_r: jnp.ndarray
+
+
+def body_constants(params: RcamParams) -> Body:
+    """The :class:`Body` constants of the parameters (once per run)."""
+    a, b, c, e = params.ixx_m2, params.iyy_m2, params.izz_m2, params.ixz_m2
+    det = a * c - e * e
+    return Body(1.0 / params.mass_kg, params.thrust_mass_kg * params.gravity_m_s2 / params.mass_kg,
+                c / det, -e / det, e * (b - a - c) / det, -(c * (c - b) + e * e) / det,
+                1.0 / b, (c - a) / b, e / b,
+                a / det, (e * e - a * (b - a)) / det, e * (a + c - b) / det)
+
+
 def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3,
-                v_gust_m_s=0.0, p_gust_rad_s=0.0) -> RcamState:
-    """Time derivative of the state (an :class:`RcamState` of rates)."""
+                gust: Gust = CALM, one=1.0, body: Body | None = None) -> RcamState:
+    """Time derivative of the state (an :class:`RcamState` of rates) in a gust (body axes).
+
+    ``one`` is the runtime 1.0 of :func:`mcfdd.compute.once` (air data, forces and moments, and
+    the attitude's sines and cosines each feed several of the twelve rates); ``body`` the run's
+    :func:`body_constants` (computed here when not given).
+    """
+    body = body_constants(params) if body is None else body
     s, c, lt = params.wing_area_m2, params.mean_chord_m, params.tail_arm_m
     tail = params.tail_area_m2 / s
-    air = air_data(state, v_gust_m_s)
+    air = air_data(state, gust)
     alpha, beta, speed = air.alpha, air.beta, air.airspeed
-    qs = 0.5 * density_kg_m3 * speed**2 * s
+    qs_m = (0.5 * s) * density_kg_m3 * body.inv_mass * speed**2  # dynamic pressure times S, per unit mass
     chord_v = c / speed
-    p_air = state.p - p_gust_rad_s
-
-    downwash = params.downwash_slope * (alpha - params.alpha_l0_rad)
-    tail_incidence = alpha - downwash + controls.stabiliser
-    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + 1.3 * state.q * lt / speed)
-    cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
-    cy = -1.6 * beta + 0.24 * controls.rudder
     ca, sa = jnp.cos(alpha), jnp.sin(alpha)
-    fx = qs * (cl * sa - cd * ca)
-    fy = qs * cy
-    fz = -qs * (cd * sa + cl * ca)
+    alpha, beta, speed, qs_m, chord_v, ca, sa = once((alpha, beta, speed, qs_m, chord_v, ca, sa), one)
+    p_air, q_air, r_air = once((state.p - gust.p, state.q - gust.q, state.r - gust.r), one)
+
+    tail_incidence = (controls.stabiliser + params.downwash_slope * params.alpha_l0_rad
+                      + (1.0 - params.downwash_slope) * alpha)  # alpha - eps + delta_t
+    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + 1.3 * q_air * lt / speed)
+    cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
+    cl, cd, tail_incidence = once((cl, cd, tail_incidence), one)
+    cy = -1.6 * beta + 0.24 * controls.rudder
+    ax = qs_m * (cl * sa - cd * ca)  # aerodynamic forces per unit mass
+    ay = qs_m * cy
+    az = -qs_m * (cd * sa + cl * ca)
 
     tail_volume = 3.1 * tail * lt / c
-    roll = -1.4 * beta + chord_v * (-11.0 * p_air + 5.0 * state.r) - 0.6 * controls.aileron + 0.22 * controls.rudder
+    # terms of the controls alone first: the same in every Runge-Kutta stage, computed once per step
+    roll = (0.22 * controls.rudder - 0.6 * controls.aileron) - 1.4 * beta + chord_v * (-11.0 * p_air + 5.0 * r_air)
     pitch = (-0.59 - tail_volume * tail_incidence
-             - 4.03 * tail * (lt / c) ** 2 * chord_v * state.q)
-    yaw = ((1.0 - alpha * (180.0 / (15.0 * math.pi))) * beta + chord_v * (1.7 * p_air - 11.5 * state.r)
-           - 0.63 * controls.rudder)
+             - 4.03 * tail * (lt / c) ** 2 * chord_v * q_air)
+    yaw = (-0.63 * controls.rudder + (1.0 - alpha * (180.0 / (15.0 * math.pi))) * beta
+           + chord_v * (1.7 * p_air - 11.5 * r_air))
     dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
-    thrust_scale = params.thrust_mass_kg * params.gravity_m_s2
-    f1, f2 = controls.throttle1 * thrust_scale, controls.throttle2 * thrust_scale
-    moment_l = qs * c * roll + fy * dz
-    moment_m = qs * c * pitch + fz * dx - fx * dz + (params.z_cg_m - params.engine_z_m) * (f1 + f2)
-    moment_n = qs * c * yaw - fy * dx + params.engine_y_m * (f1 - f2)
+    t1, t2 = controls.throttle1 * body.thrust_per_mass, controls.throttle2 * body.thrust_per_mass
+    thrust, thrust_m, thrust_n = once((t1 + t2, (params.z_cg_m - params.engine_z_m) * (t1 + t2),
+                                       params.engine_y_m * (t1 - t2)), one)  # the same in every stage
+    moment_l = qs_m * c * roll + ay * dz  # moments per unit mass
+    moment_m = qs_m * c * pitch + az * dx - ax * dz + thrust_m
+    moment_n = qs_m * c * yaw - ay * dx + thrust_n
+    ax, ay, az, moment_l, moment_m, moment_n = once((ax, ay, az, moment_l, moment_m, moment_n), one)
 
-    m, g = params.mass_kg, params.gravity_m_s2
+    g = params.gravity_m_s2
     sphi, cphi = jnp.sin(state.phi), jnp.cos(state.phi)
     sth, cth = jnp.sin(state.theta), jnp.cos(state.theta)
     spsi, cpsi = jnp.sin(state.psi), jnp.cos(state.psi)
+    sphi, cphi, sth, cth = once((sphi, cphi, sth, cth), one)
     u, v, w, p, q, r = state.u, state.v, state.w, state.p, state.q, state.r
-    udot = (fx + f1 + f2) / m - g * sth - (q * w - r * v)
-    vdot = fy / m + g * cth * sphi - (r * u - p * w)
-    wdot = fz / m + g * cth * cphi - (p * v - q * u)
-
-    a, b, cz, e = params.ixx_m2, params.iyy_m2, params.izz_m2, params.ixz_m2
-    # I w_dot = M - w x I w, with I = m [[a, 0, e], [0, b, 0], [e, 0, cz]]
-    lx = moment_l / m - (q * (e * p + cz * r) - r * b * q)
-    my = moment_m / m - (r * (a * p + e * r) - p * (e * p + cz * r))
-    nz = moment_n / m - (p * b * q - q * (a * p + e * r))
-    det = a * cz - e * e
-    pdot = (cz * lx - e * nz) / det
-    qdot = my / b
-    rdot = (a * nz - e * lx) / det
+    udot = thrust + ax - g * sth - (q * w - r * v)
+    vdot = ay + g * cth * sphi - (r * u - p * w)
+    wdot = az + g * cth * cphi - (p * v - q * u)
+    pdot = body.l_l * moment_l + body.l_n * moment_n + (body.p_p * p + body.p_r * r) * q
+    qdot = body.m_m * moment_m + body.q_pr * p * r + body.q_pp * (p * p - r * r)
+    rdot = body.l_n * moment_l + body.n_n * moment_n + (body.r_p * p + body.r_r * r) * q
 
     turn = q * sphi + r * cphi
     down = -u * sth + (v * sphi + w * cphi) * cth
@@ -182,18 +228,23 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,
-         v_gust_m_s=0.0, p_gust_rad_s=0.0):
+         gust: Gust = CALM, one=1.0, body: Body | None = None, k1: RcamState | None = None):
     """One classical Runge-Kutta step of ``dt_s`` with controls, density and gusts held.
 
-    Returns (new state, derivatives at the start of the step).
+    ``one`` is the runtime 1.0 of :func:`mcfdd.compute.once`: each stage's derivatives and state
+    feed every component of the next stage and the final sum, so each is computed once; ``body``
+    the run's :func:`body_constants` and ``k1`` the derivatives at the start (both computed here
+    when not given). Returns (new state, derivatives at the start of the step).
     """
+    body = body_constants(params) if body is None else body
+
     def f(x):
-        return derivatives(params, x, controls, density_kg_m3, v_gust_m_s, p_gust_rad_s)
+        return once(derivatives(params, x, controls, density_kg_m3, gust, one, body), one)
 
     def add(x, k, h):
-        return jax.tree.map(lambda a, b: a + h * b, x, k)
+        return once(jax.tree.map(lambda a, b: a + h * b, x, k), one)
 
-    k1 = f(state)
+    k1 = f(state) if k1 is None else k1
     k2 = f(add(state, k1, 0.5 * dt_s))
     k3 = f(add(state, k2, 0.5 * dt_s))
     k4 = f(add(state, k3, dt_s))
@@ -252,8 +303,3 @@ def trim(params: RcamParams, vcas_m_s, altitude_m, iterations: int = 12) -> Trim
         x = x - jnp.linalg.solve(jax.jacfwd(residual)(x), residual(x))
     left = residual(x)
     return Trim(level_state(tas, x[0], altitude_m), x[1], x[2], jnp.max(jnp.abs(left)))
-
-
-def first_order_lag(value, target, time_constant_s, dt_s: float):
-    """Exact zero-order-hold step of ``tau y' = target - y`` over ``dt_s``."""
-    return target + (value - target) * jnp.exp(-dt_s / time_constant_s)

@@ -34,7 +34,8 @@ class PlantOutputs(NamedTuple):
     altitude_m: jnp.ndarray
 
 
-FULL_AIRCRAFT_SIGNALS = ("alpha_rad", "beta_rad", "theta_rad", "q_rad_s", "r_rad_s", "psi_rad", "nz_g")
+FULL_AIRCRAFT_SIGNALS = ("alpha_rad", "beta_rad", "theta_rad", "q_rad_s", "r_rad_s", "psi_rad", "nz_g",
+                         "stabiliser_rad", "rudder_rad", "throttle_rad")
 RcamOutputs = NamedTuple("RcamOutputs", [(name, jnp.ndarray) for name in PlantOutputs._fields + FULL_AIRCRAFT_SIGNALS])
 RcamOutputs.__doc__ = """The signals of :class:`PlantOutputs` and the full aircraft's: alpha, beta, theta (rad), q, r
-(rad/s), psi (rad) and the body normal load factor nz (g)."""
+(rad/s), psi (rad), the body normal load factor nz (g), and the stabiliser, rudder and throttle positions (rad)."""
