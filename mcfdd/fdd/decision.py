@@ -14,6 +14,10 @@ driven; the floor may apply to a load-weighted ||u|| (see
 A decoded model becomes a decision once it has been decoded without interruption for a
 confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
 keeps short noise-driven signatures from raising alarms.
+
+A confirmed decision also has a signed statistic (:func:`confirmed_margin`), on board like the
+decision itself, that is positive exactly where the decision is confirmed: the scoring's false
+alarm and missed detection margins (DESIGN.md section 5a) are its extremes over their windows.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ def excitation_init(u0):
     return jnp.zeros_like(jnp.asarray(u0))
 
 
-def excitation_step(state, u_c, u, a, dt_s: float):
+def excitation_step(a, state, u_c, u, dt_s: float):
     """Low-passed magnitude of the measured tracking error, ``a/(s+a) |u_c - u|``, exact for the error
     held over the sample. Returns (new state, output).
 
@@ -47,6 +51,12 @@ def excitation_step(state, u_c, u, a, dt_s: float):
     """
     phi_a = jnp.exp(-a * dt_s)
     return phi_a * state + (1.0 - phi_a) * jnp.abs(u_c - u), state
+
+
+def relative(x, threshold):
+    """Signed margin of ``x >= threshold`` relative to the threshold, ``(x - threshold) (1 / threshold)``
+    (absolute where the threshold is not positive): positive where x exceeds it, up to rounding."""
+    return (x - threshold) * (1.0 / jnp.where(threshold > 0, threshold, 1.0))
 
 
 def signature(theta, theta_u, tau):
@@ -66,7 +76,7 @@ def confirm_init():
     return jnp.asarray(NO_DECISION, jnp.int32), jnp.asarray(0.0)
 
 
-def confirm_step(state, decoded, confirm_s, dt_s: float):
+def confirm_step(confirm_s, state, decoded, dt_s: float):
     """Returns (new state, confirmed model id or NO_DECISION)."""
     model, held = state
     held = jnp.where((decoded == model) & (decoded != NO_DECISION), held + dt_s, 0.0)
@@ -77,3 +87,26 @@ def confirm_step(state, decoded, confirm_s, dt_s: float):
 def threshold(theta, tau):
     """iota = [theta >= tau], eq. (25)."""
     return theta >= tau
+
+
+def confirmed_margin(confirm_s, run_min, margin, decided, held, confirmed, dt_s: float):
+    """Signed statistic of a confirmed decision, positive exactly where ``confirmed``. Returns (new run
+    minimum, statistic), dimensionless.
+
+    ``margin`` is the sample's signed margin of the decision (positive where it is decided, up to
+    rounding; relative units), ``decided`` the decision of the sample, ``held`` the time it has been
+    held (the state of :func:`confirm_step` after this sample, s) and ``confirmed`` its output. While
+    decided, the statistic is the smaller of the run minimum (the least margin over the current run
+    of decided samples) and the shortfall of the run against the confirmation time as a fraction of
+    it, ``(held - (confirm_s - dt/2)) / max(confirm_s, dt)``: it turns positive when the run is
+    confirmed and stays positive while every sample of the run is decided. Undecided samples score
+    their own margin minus the whole confirmation, so the statistic is continuous where a run
+    starts. Where rounding leaves the raw value on the wrong side of zero, it is set to the
+    smallest normal number of that sign: the sign is the decision's own.
+    """
+    run_min = jnp.where(held > 0.0, jnp.minimum(run_min, margin), margin)
+    need = confirm_s - 0.5 * dt_s
+    per_s = 1.0 / jnp.maximum(confirm_s, dt_s)
+    raw = jnp.where(decided, jnp.minimum(run_min, (held - need) * per_s), margin - jnp.maximum(need, 0.0) * per_s)
+    tiny = jnp.finfo(jnp.result_type(raw)).tiny
+    return run_min, jnp.where(confirmed, jnp.maximum(raw, tiny), jnp.minimum(raw, -tiny))
