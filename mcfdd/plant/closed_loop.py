@@ -15,16 +15,16 @@ step at time t:
 
 Everything is written for one scenario; batches come from ``jax.vmap``.
 
-The full aircraft (``plant.aircraft.model = "rcam"``) lives in :mod:`mcfdd.plant.rcam_loop`;
-:func:`prepare`, :func:`init` and :func:`step` dispatch on the type of the model (static), so
-callers use one interface. Both return outputs with the Vcas and altitude the FDD schedules on
-(constant on the roll axis).
+The full aircraft (``plant.aircraft.model = "rcam"``) lives in :mod:`mcfdd.plant.rcam_loop` with
+the same three functions; :func:`loop` picks the pair of a model (the one dispatch on the type of
+the model, static), so callers use one interface. Both return outputs with the Vcas and altitude
+the FDD schedules on (constant on the roll axis).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -111,8 +111,6 @@ def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircr
 
 def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunParams:
     """Per-run parameters: uncertainties applied, gains scheduled, turbulence discretised."""
-    if isinstance(model, rcam_loop.RcamModel):
-        return rcam_loop.prepare(model, scenario, dt_s)
     nominal = model.actuator
     act = nominal._replace(
         supply_pressure_pa=nominal.supply_pressure_pa * scenario.supply_pressure_scale,
@@ -146,8 +144,6 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
 
 def init(params: RunParams, noise3) -> PlantState:
     """Trimmed wings-level start; turbulence from its stationary distribution (3 normals)."""
-    if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.init(params, noise3)
     zero = jnp.zeros_like(params.qbar_pa)
     return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
                       turbulence.init(params.turbulence, noise3))
@@ -159,8 +155,6 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
 
     Returns (new state, :class:`PlantOutputs` at time ``t_s``).
     """
-    if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.step(params, state, t_s, noise, dt_s, substeps, kinds)
     act = params.actuator
     noise = once(noise, params.one)  # the normals feed several fusions; drawn once
     pilot = once(manoeuvres.inputs(params.manoeuvre, t_s, kinds), params.one)
@@ -197,6 +191,26 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
         altitude_m=params.altitude_m,
     )
     return PlantState(act_state, roll, integrator, gust_next), outputs
+
+
+class Loop(NamedTuple):
+    """The pure functions of one plant: ``prepare(model, scenario, dt_s) -> params``,
+    ``init(params, noise3) -> state`` and ``step(params, state, t_s, noise, dt_s, substeps, kinds) ->
+    (state, outputs)``."""
+
+    prepare: Callable
+    init: Callable
+    step: Callable
+
+
+LOOPS = {PlantModel: Loop(prepare, init, step),
+         rcam_loop.RcamModel: Loop(rcam_loop.prepare, rcam_loop.init, rcam_loop.step)}
+
+
+def loop(model) -> Loop:
+    """The plant functions of ``model`` (a :class:`PlantModel` or a
+    :class:`~mcfdd.plant.rcam_loop.RcamModel`): the one place the aircraft is chosen."""
+    return LOOPS[type(model)]
 
 
 def deflection_deg(x_m, r_arm_m):
