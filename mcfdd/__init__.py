@@ -7,7 +7,7 @@ has are used (same results, slower).
 """
 
 from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS before JAX starts its backends)
-from mcfdd.analysis.campaign import Status
+from mcfdd.analysis.scoring import Status
 from mcfdd.config import ConfigError, load_config
 from mcfdd.workflows.campaign import CampaignResult, OutputFolderError, campaign_executor, run_campaign
 from mcfdd.workflows.figures import FiguresResult, paper_figures

@@ -98,14 +98,14 @@ def chunk_size(requested: int, n: int) -> int:
 
 def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     """Columns, scenarios, truths, nearest models and keys of ``ids`` padded to ``size`` (by repeating the last id)."""
-    from mcfdd.analysis import campaign, scenarios, simulate
+    from mcfdd.analysis import scenarios, scoring, simulate
 
     padded = np.concatenate([ids, np.repeat(ids[-1:], size - len(ids))])
     cols = build.design_chunk(setup.config, setup.plan, padded)
     kind = np.asarray(cols["fault_kind"])
     nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
     onset = scenarios.fault_onsets(cols, size)
-    truth = campaign.Truth(onset.astype(setup.dtype), accept)
+    truth = scoring.Truth(onset.astype(setup.dtype), accept, nearest)
     return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, simulate.run_keys(seed, padded)
 
 
@@ -140,7 +140,7 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
     Returns:
         The chunk's rows of the scenario table: column name -> (k,) array.
     """
-    from mcfdd.analysis import campaign, metrics
+    from mcfdd.analysis import campaign, metrics, scoring
 
     c = cfg.campaign
     k = len(ids)
@@ -149,15 +149,11 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
         cols, scen, truth, onset, nearest, keys = _chunk(setup, c.seed, ids, size)
         raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
                                  c.substeps, setup.kinds)
-        raw = {name: np.asarray(v)[:k] for name, v in raw.items()}
+        outc = scoring.table({name: np.asarray(v)[:k] for name, v in raw.items()}, onset[:k], nearest[:k],
+                             c.duration_s, cfg.evaluation.t_detec_s)
         cols = {name: np.asarray(v)[:k] for name, v in cols.items()}
-        # Scored at the campaign's precision too, so the table does not depend on the process's JAX settings.
-        outc = metrics.outcomes(raw, onset[:k], truth.accept[:k], nearest[:k], c.duration_s, cfg.evaluation.t_detec_s)
         table = {"scenario_id": ids, **cols, **outc}
         table.update(metrics.detectability_columns(cols, outc["peak_load_fraction"], setup.plan.ranges))
-    for i in range(len(setup.names)):
-        table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
-        table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
     return table
 
 
