@@ -280,7 +280,7 @@ def test_heading_change_captures_the_new_heading(closed_loop_runs):
 def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules_on_it():
     """run_batch's Vcas/altitude ranges against the full histories of the same rcam runs."""
     from mcfdd import config
-    from mcfdd.analysis import batch, build, campaign, scenarios, simulate
+    from mcfdd.analysis import batch, build, campaign, scenarios, scoring, simulate
     from mcfdd.workflows.common import load_bank
 
     cfg = config.parse(config.CampaignConfig, {
@@ -295,7 +295,7 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
     fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
     scen = scenarios.to_scenario(cols, np.float64)
     kinds, keys = batch.kinds_in(scen.manoeuvre.kind), simulate.run_keys(0, range(n))
-    truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
+    truth = scoring.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool), np.zeros(n, np.int32))
     raw = campaign.run_batch(model, fdd, build.settings(cfg.evaluation, model.actuator.r_arm_m), scen, truth, keys,
                              1200, 0.01, 4, kinds)
     plant, fdd_out = simulate.fdd_batch(model, fdd, scen, keys, 1200, 0.01, 4, kinds)
