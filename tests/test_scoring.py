@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
+import mcfdd
 from mcfdd import config
 from mcfdd.analysis import build, campaign, scenarios, scoring, simulate, tuning
 from mcfdd.analysis.scoring import smooth
@@ -432,13 +433,18 @@ MARGINS = {"false_alarm": "false_alarm_margin", "missed": "missed_margin", "eta_
 
 @pytest.mark.parametrize("name", ["float32", "float64"])
 def test_every_margin_is_positive_exactly_for_its_flag_on_2048_runs(name):
-    """The space of validation.toml up to 380 kt (stall loads), short runs, an FDD that alarms: both signs occur."""
-    cfg = config.load(config.CampaignConfig, CONFIGS / "validation.toml", overrides={
-        "campaign.scenarios": 2048, "campaign.duration_s": 7.0, "campaign.precision": name,
-        "evaluation.settle_s": 1.0, "space.vcas_kt": [280.0, 380.0], "space.hinge_scale": [0.9, 1.4],
-        "space.fault_onset_s": [2.0, 3.0], "space.t_start_s": [2.5, 4.0], "space.duration_s": [0.5, 1.5],
-        "space.hold_s": [0.5, 1.0], "fdd.loe.detection_tau": 0.04, "fdd.loe.detection_contrast": 0.0,
-        "fdd.loe.detection_confirm_s": 0.2, "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 1.5})
+    """The space of stall_campaign.toml with LOE faults and 10 s runs busy with manoeuvres at high speed,
+    and an FDD that alarms and identifies stalls readily: every flag is set in some runs and not in others."""
+    cfg = mcfdd.load_config(CONFIGS / "stall_campaign.toml", overrides={
+        "campaign.scenarios": 2048, "campaign.duration_s": 10.0, "campaign.precision": name,
+        "space.fault_kind": ["none", "jamming", "surface_damage", "disconnection"],
+        "space.surface_damage_size": [0.3, 1.0], "space.fault_onset_s": [1.5, 3.0], "space.t_start_s": [1.0, 3.0],
+        "space.duration_s": [2.0, 6.0], "space.hold_s": [1.0, 3.0], "space.vcas_kt": [300.0, 380.0],
+        "space.hinge_scale": [1.1, 1.4], "evaluation.settle_s": 1.0, "evaluation.stall_grace_s": 0.2,
+        "fdd.loe.detection_tau": 0.04, "fdd.loe.detection_contrast": 0.0, "fdd.loe.detection_confirm_s": 0.2,
+        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 2.0, "fdd.stall.model.tau_deg": 150.0,
+        "fdd.stall.signal.rate_min_deg_s": 60.0, "fdd.stall.signal.command_min_deg": 2.0,
+        "fdd.stall.signal.position_min_deg": 2.0, "fdd.stall.signal.error_min_deg": 0.2})
     with precision(name):
         setup = runner.campaign_setup(cfg)
         scen, truth, keys = runner.chunk_inputs(setup, cfg.campaign.seed, np.arange(setup.n), setup.n)

@@ -73,30 +73,41 @@ def fdd_step(fdd_params: system.FddParams, state: system.FddState, plant, t_s, d
     return system.step(fdd_params, state, plant.u_c_m, plant.u_m, plant.vcas_m_s, plant.altitude_m, t_s, dt_s)
 
 
+def start(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario, key,
+          dt_s: float, observer: Observer = HISTORY):
+    """A run at t = 0: (plant parameters, carry (plant state, FDD state or None, observer state))."""
+    params = closed_loop.loop(model).prepare(model, scenario, dt_s)
+    plant_state = closed_loop.loop(model).init(params, jax.random.normal(key, (3,)))
+    zero = jnp.zeros_like(params.qbar_pa)
+    fdd_state = None if fdd_params is None else system.init(fdd_params, zero)
+    return params, (plant_state, fdd_state, observer.init(zero.dtype))
+
+
+def advance(model: closed_loop.PlantModel, params, fdd_params: system.FddParams | None, carry, k, normals,
+            dt_s: float, substeps: int, kinds: tuple[int, ...], observer: Observer = HISTORY):
+    """Sample k of a run (``normals``: its NOISE_DIM standard normals). Returns (new carry, the observer's y)."""
+    plant_state, fdd_state, seen = carry
+    t = k * dt_s
+    plant_state, out = closed_loop.loop(model).step(params, plant_state, t, normals, dt_s, substeps, kinds)
+    fo = None
+    if fdd_params is not None:
+        fdd_state, fo = fdd_step(fdd_params, fdd_state, out, t, dt_s)
+    seen, y = observer.update(seen, t, out, fo)
+    return (plant_state, fdd_state, seen), y
+
+
 def run(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario, key,
         n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...], observer: Observer = HISTORY):
     """One run of n_steps samples of the plant of ``model`` with the FDD (None: the plant alone).
 
     Returns (the observer's final state, its stacked per-step y).
     """
-    loop = closed_loop.loop(model)
-    params = loop.prepare(model, scenario, dt_s)
-    plant_state = loop.init(params, jax.random.normal(key, (3,)))
-    zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = None if fdd_params is None else system.init(fdd_params, zero)
+    params, carry = start(model, fdd_params, scenario, key, dt_s, observer)
 
     def body(carry, k, normals):
-        plant_state, fdd_state, seen = carry
-        t = k * dt_s
-        plant_state, out = loop.step(params, plant_state, t, normals, dt_s, substeps, kinds)
-        fo = None
-        if fdd_params is not None:
-            fdd_state, fo = fdd_step(fdd_params, fdd_state, out, t, dt_s)
-        seen, y = observer.update(seen, t, out, fo)
-        return (plant_state, fdd_state, seen), y
+        return advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds, observer)
 
-    (_, _, seen), ys = scan_steps(body, (plant_state, fdd_state, observer.init(zero.dtype)), key, n_steps,
-                                  closed_loop.NOISE_DIM)
+    (_, _, seen), ys = scan_steps(body, carry, key, n_steps, closed_loop.NOISE_DIM)
     return seen, ys
 
 
