@@ -236,8 +236,9 @@ def numpy_confirmed_statistic(rec: Recorded, i: int):
     eta = rec.signal("eta_signal", i) | rec.signal("eta_model", i)
     since, held, run_min, prev = np.inf, 0.0, 0.0, False
     out, confirmed = [], []
+    tau = loe.detection_tau
     need = loe.detection_confirm_s - 0.5 * dt
-    per_s = 1.0 / max(loe.detection_confirm_s, dt)
+    per_s = tau / max(loe.detection_confirm_s, dt)
     floor = loe.excitation_floor if loe.excitation_floor > 0 else 1.0
     hold = loe.stall_hold_s if loe.stall_hold_s > 0 else 1.0
     for k in range(rec.n_steps):
@@ -249,9 +250,8 @@ def numpy_confirmed_statistic(rec: Recorded, i: int):
         held = held + dt if (rejected and prev) else 0.0
         prev = rejected
         den = theta_u[k] if theta_u[k] > 0 else 1.0
-        margin = min((theta[k, 0] / den - loe.detection_tau) / loe.detection_tau,
-                     (contrast / den - loe.detection_contrast) / loe.detection_tau,
-                     (theta_w[k] - loe.excitation_floor) / floor, (since - loe.stall_hold_s) / hold)
+        margin = min(theta[k, 0] / den - tau, contrast / den - loe.detection_contrast,
+                     (theta_w[k] - loe.excitation_floor) * tau / floor, (since - loe.stall_hold_s) * tau / hold)
         run_min = min(run_min, margin) if held > 0 else margin
         raw = min(run_min, (held - need) * per_s) if rejected else margin - max(need, 0.0) * per_s
         out.append(raw)
@@ -278,27 +278,19 @@ def test_the_fdd_detection_statistic_is_signed_by_its_decision_and_matches_numpy
 
 
 def numpy_pending_chain(rec: Recorded, i: int, w: dict, method: str):
-    """eta = 1 outside stall loads with the grace rule, run sample by sample: (found time, counted largest margin)."""
+    """eta = 1 outside stall loads with the grace rule, run sample by sample: the first counted time."""
     s, t = rec.settings, rec.t
-    eta, margin = rec.signal(f"eta_{method}", i), rec.signal(f"eta_{method}_margin", i)
-    outside = w["settled"] & w["clear"] & eta
+    outside = w["settled"] & w["clear"] & rec.signal(f"eta_{method}", i)
     openings = set(w["openings"])
-    found, pending, pending_max, counted = np.inf, np.inf, -np.inf, -np.inf
+    found, pending = np.inf, np.inf
     for k in range(rec.n_steps):
         if t[k] - pending > s.stall_grace_s:  # expired: the interval counts
-            found = min(found, pending)
-            if pending < rec.onset[i]:
-                counted = max(counted, pending_max)
-            pending, pending_max = np.inf, -np.inf
+            found, pending = min(found, pending), np.inf
         elif k in openings:  # a stall opens within the grace time: dropped
-            pending, pending_max = np.inf, -np.inf
-        if outside[k]:
-            pending = t[k] if pending == np.inf else pending
-            pending_max = max(pending_max, margin[k])
-    found = min(found, pending)
-    if pending < rec.onset[i]:
-        counted = max(counted, pending_max)
-    return found, counted
+            pending = np.inf
+        if outside[k] and pending == np.inf:
+            pending = t[k]
+    return min(found, pending)
 
 
 def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
@@ -325,7 +317,7 @@ def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
         expected["stall_seen"].append(bool(w["events"]))
         expected["stall_theta_peak_min"].append(nan_if_not_finite(peak_min))
         expected["stall_missed_detection"].append(ok and peak_min < tau)
-        expected["stall_missed_detection_margin"].append(-((peak_min - tau) * (1.0 / tau)) if ok else np.nan)
+        expected["stall_missed_detection_margin"].append((tau - peak_min) * (1.0 / tau) if ok else np.nan)
         free = largest(theta, w["quiet"])
         fired = ok and free >= tau
         expected["stall_theta_max_free"].append(nan_if_not_finite(free))
@@ -345,15 +337,13 @@ def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
                                                          for o in w["openings"])]
             explained += len(outside) - len(unexplained)
             found = t[unexplained[0]] if unexplained else np.inf
-            chain_found, counted = numpy_pending_chain(rec, i, w, method)
-            assert chain_found == found
+            assert numpy_pending_chain(rec, i, w, method) == found
             flag = ok and found < rec.onset[i]
-            quiet_best = largest(rec.signal(f"eta_{method}_margin", i), w["quiet"] & ~eta)
-            best = max(quiet_best, counted)
+            margin = rec.signal(f"eta_{method}_margin", i)
+            signed = max(largest(margin, w["quiet"]), tiny) if flag else min(largest(margin, w["quiet"] & ~eta), -tiny)
             expected[f"eta_false_{method}"].append(flag)
             expected[f"eta_false_{method}_time_s"].append(nan_if_not_finite(found))
-            expected[f"eta_false_{method}_margin"].append((max(best, tiny) if flag else min(best, -tiny)) if ok
-                                                          else np.nan)
+            expected[f"eta_false_{method}_margin"].append(signed if ok else np.nan)
         jam = rec.signal("jammed", i) & (rec.signal("eta_signal", i) | rec.signal("eta_model", i))
         jam_time = first_time(t, jam)
         expected["jam_taken_for_stall"].append(ok and np.isfinite(jam_time))

@@ -53,10 +53,15 @@ def excitation_step(a, state, u_c, u, dt_s: float):
     return phi_a * state + (1.0 - phi_a) * jnp.abs(u_c - u), state
 
 
-def relative(x, threshold):
-    """Signed margin of ``x >= threshold`` relative to the threshold, ``(x - threshold) (1 / threshold)``
+def relative(x, threshold, scale=1.0):
+    """Signed margin of ``x >= threshold`` relative to the threshold, ``(x - threshold) (scale / threshold)``
     (absolute where the threshold is not positive): positive where x exceeds it, up to rounding."""
-    return (x - threshold) * (1.0 / jnp.where(threshold > 0, threshold, 1.0))
+    return (x - threshold) * (scale / jnp.where(threshold > 0, threshold, 1.0))
+
+
+def below(x, threshold, scale=1.0):
+    """Signed margin of ``x <= threshold``, ``(threshold - x) (scale / threshold)``, as :func:`relative`."""
+    return (threshold - x) * (scale / jnp.where(threshold > 0, threshold, 1.0))
 
 
 def signature(theta, theta_u, tau):
@@ -89,24 +94,24 @@ def threshold(theta, tau):
     return theta >= tau
 
 
-def confirmed_margin(confirm_s, run_min, margin, decided, held, confirmed, dt_s: float):
+def confirmed_margin(confirm_s, scale, run_min, margin, decided, held, confirmed, dt_s: float):
     """Signed statistic of a confirmed decision, positive exactly where ``confirmed``. Returns (new run
-    minimum, statistic), dimensionless.
+    minimum, statistic), in the units of ``margin``.
 
     ``margin`` is the sample's signed margin of the decision (positive where it is decided, up to
-    rounding; relative units), ``decided`` the decision of the sample, ``held`` the time it has been
-    held (the state of :func:`confirm_step` after this sample, s) and ``confirmed`` its output. While
-    decided, the statistic is the smaller of the run minimum (the least margin over the current run
-    of decided samples) and the shortfall of the run against the confirmation time as a fraction of
-    it, ``(held - (confirm_s - dt/2)) / max(confirm_s, dt)``: it turns positive when the run is
-    confirmed and stays positive while every sample of the run is decided. Undecided samples score
-    their own margin minus the whole confirmation, so the statistic is continuous where a run
-    starts. Where rounding leaves the raw value on the wrong side of zero, it is set to the
-    smallest normal number of that sign: the sign is the decision's own.
+    rounding), ``decided`` the decision of the sample, ``held`` the time it has been held (the state
+    of :func:`confirm_step` after this sample, s) and ``confirmed`` its output. While decided, the
+    statistic is the smaller of the run minimum (the least margin over the current run of decided
+    samples) and the shortfall of the run against the confirmation time as a fraction of it, times
+    ``scale``: ``scale (held - (confirm_s - dt/2)) / max(confirm_s, dt)``; it turns positive when the
+    run is confirmed and stays positive while every sample of the run is decided. Undecided samples
+    score their own margin minus a whole confirmation's shortfall, so the statistic is continuous
+    where a run starts. Where rounding leaves the raw value on the wrong side of zero, it is set to
+    the smallest normal number of that sign: the sign is the decision's own.
     """
     run_min = jnp.where(held > 0.0, jnp.minimum(run_min, margin), margin)
     need = confirm_s - 0.5 * dt_s
-    per_s = 1.0 / jnp.maximum(confirm_s, dt_s)
+    per_s = scale / jnp.maximum(confirm_s, dt_s)
     raw = jnp.where(decided, jnp.minimum(run_min, (held - need) * per_s), margin - jnp.maximum(need, 0.0) * per_s)
     tiny = jnp.finfo(jnp.result_type(raw)).tiny
     return run_min, jnp.where(confirmed, jnp.maximum(raw, tiny), jnp.minimum(raw, -tiny))

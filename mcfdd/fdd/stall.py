@@ -63,32 +63,24 @@ class SignalState(NamedTuple):
     iota_prev: jnp.ndarray
 
 
-def large_signals(rules: SignalRules, u_c, u):
-    """Condition (34)."""
-    return (jnp.abs(u_c) >= rules.command_min_m) & (jnp.abs(u) >= rules.position_min_m)
-
-
-def outward(rules: SignalRules, u_c, u):
-    """Condition (35), sgn(u_c - u) = sgn(u), with the error at least ``error_min_m``.
-
-    Without the margin, a rod resting on its command at a large deflection (e = 0 up to sensor
-    noise) would meet (35) on every other sample.
-    """
-    error = u_c - u
-    return (jnp.sign(error) == jnp.sign(u)) & (jnp.abs(error) >= rules.error_min_m)
-
-
-def conditions(rules: SignalRules, u_c, u):
-    """Conditions (34) and (35) together: the gate of both identification methods."""
-    return large_signals(rules, u_c, u) & outward(rules, u_c, u)
-
-
 def conditions_margin(rules: SignalRules, u_c, u):
-    """Signed margin of :func:`conditions`: the least of |u_c|, |u| and the outward error sgn(u) (u_c - u)
-    relative to their thresholds (sgn(u_c - u) = sgn(u) with |u_c - u| >= e_min is sgn(u) (u_c - u) >= e_min)."""
+    """Signed margin of conditions (34) and (35), the gate of both identification methods: the least of
+    |u_c| and |u| over their large-signal thresholds (34) and of the outward error sgn(u) (u_c - u)
+    over ``error_min_m`` (35), each relative (:func:`mcfdd.fdd.decision.relative`); the gate is open
+    where it is not negative (:func:`conditions`).
+
+    (35) is sgn(u_c - u) = sgn(u) with |u_c - u| at least ``error_min_m``, that is sgn(u) (u_c - u) >=
+    error_min_m for a positive ``error_min_m``. Without that margin a rod resting on its command at a
+    large deflection (e = 0 up to sensor noise) would meet (35) on every other sample.
+    """
     large = jnp.minimum(decision.relative(jnp.abs(u_c), rules.command_min_m),
                         decision.relative(jnp.abs(u), rules.position_min_m))
     return jnp.minimum(large, decision.relative(jnp.sign(u) * (u_c - u), rules.error_min_m))
+
+
+def conditions(rules: SignalRules, u_c, u):
+    """Conditions (34) and (35) together: :func:`conditions_margin` not negative."""
+    return conditions_margin(rules, u_c, u) >= 0.0
 
 
 def signal_init(u0) -> SignalState:
@@ -113,7 +105,7 @@ def signal_step(rules: SignalRules, state: SignalState, iota, gate, u, t_s, dt_s
     moved = long_enough & (mean_rate > rules.rate_min_m_s)
     new = SignalState(jnp.where(moved, t_s, anchor_t), jnp.where(moved, u, anchor_u), iota)
     margin = jnp.minimum(decision.relative(elapsed, rules.window_s - 0.5 * dt_s),
-                         -decision.relative(mean_rate, rules.rate_min_m_s))
+                         decision.below(mean_rate, rules.rate_min_m_s))
     return new, eta, margin
 
 

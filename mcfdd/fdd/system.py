@@ -165,15 +165,15 @@ def excitation_weight(loe: LoeParams, load):
 
 
 def rejection_margin(loe: LoeParams, ratio0, contrast, theta_w, since_stall):
-    """Signed margin of the rejection of the fault-free model (dimensionless): the least of
-    ``(theta_0 / ||u|| - detection_tau) / detection_tau``, ``(contrast - detection_contrast) /
-    detection_tau`` (contrast: theta_0 less the smallest fault model's theta, over ||u||), the
-    excitation over its floor and the time since the last stall identification over ``stall_hold_s``
-    (both :func:`mcfdd.fdd.decision.relative`). Positive where the sample rejects, up to rounding."""
-    per_tau = 1.0 / loe.detection_tau
-    return jnp.minimum(jnp.minimum((ratio0 - loe.detection_tau) * per_tau, (contrast - loe.detection_contrast) * per_tau),
-                       jnp.minimum(decision.relative(theta_w, loe.excitation_floor),
-                                   decision.relative(since_stall, loe.stall_hold_s)))
+    """Signed margin of the rejection of the fault-free model, in units of theta / ||u||: the least of
+    ``theta_0 / ||u|| - detection_tau``, ``contrast - detection_contrast`` (contrast: theta_0 less the
+    smallest fault model's theta, over ||u||), and the excitation over its floor and the time since
+    the last stall identification over ``stall_hold_s``, each relative
+    (:func:`mcfdd.fdd.decision.relative`) times ``detection_tau``. Positive where the sample rejects,
+    up to rounding."""
+    return jnp.minimum(jnp.minimum(ratio0 - loe.detection_tau, contrast - loe.detection_contrast),
+                       jnp.minimum(decision.relative(theta_w, loe.excitation_floor, loe.detection_tau),
+                                   decision.relative(since_stall, loe.stall_hold_s, loe.detection_tau)))
 
 
 def init(params: FddParams, u0) -> FddState:
@@ -233,13 +233,13 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, state.stall_xq, u, u_c, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
-    gate = once(stall.conditions(stl.signal, u_c, u), params.one)  # both methods' gate
+    gate_margin = once(stall.conditions_margin(stl.signal, u_c, u), params.one)
+    gate = once(gate_margin >= 0.0, params.one)  # both methods' gate, (34)-(35)
     signal, eta_signal, slow = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
     eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
-    both = once(jnp.minimum(decision.relative(theta_stall, stl.tau), stall.conditions_margin(stl.signal, u_c, u)),
-                params.one)
-    eta_margins = once((jnp.minimum(both, slow), jnp.minimum(both, -decision.relative(theta_sl, stl.model.tau))),
+    both = once(jnp.minimum(decision.relative(theta_stall, stl.tau), gate_margin), params.one)
+    eta_margins = once((jnp.minimum(both, slow), jnp.minimum(both, decision.below(theta_sl, stl.model.tau))),
                        params.one)
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
@@ -256,8 +256,8 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     per_u = 1.0 / jnp.where(theta_u > 0.0, theta_u, 1.0)
     ratio = once(theta / jnp.where(theta_u > 0.0, theta_u, 1.0), params.one)
     margin = once(rejection_margin(loe, ratio[0], contrast * per_u, theta_w, since_stall), params.one)
-    detect_min, detection_margin = decision.confirmed_margin(loe.detection_confirm_s, state.detect_min, margin,
-                                                             rejected, detect[1], fault, dt_s)
+    detect_min, detection_margin = decision.confirmed_margin(loe.detection_confirm_s, loe.detection_tau,
+                                                             state.detect_min, margin, rejected, detect[1], fault, dt_s)
     detection_margin = once(detection_margin, params.one)
 
     new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, error_lp, confirm, detect, detect_min,

@@ -18,12 +18,13 @@ Stall events are the plant's own truth (the windows' ``opening``/``closing``, DE
   before any fault (``eta_false_<method>``, first time). Not counted within ``stall_grace_s`` after
   an event, nor just before one begins: a sample with eta = 1 is held pending for the grace time
   and dropped if an event opens meanwhile (the plant flags a stall once the pressure has all but
-  vanished, shortly after the rod slowed down). The margin (``eta_false_<method>_margin``) is the
-  largest of the FDD's signed eta margin (:class:`mcfdd.fdd.system.FddOutputs`) over the quiet
-  samples without eta = 1 and over the samples with eta = 1 of the pending intervals that count
-  (started before the fault and not dropped): positive exactly for a false identification, and
-  below zero how near the rules came (the least of the detector's theta over tau, the gate (34)-(35)
-  and rule (33) or Q_sl's theta_sl under its tau, each relative to its threshold).
+  vanished, shortly after the rod slowed down). The margin (``eta_false_<method>_margin``) is built
+  from the FDD's signed eta margin of each sample (:class:`mcfdd.fdd.system.FddOutputs`: the least
+  of the detector's theta over tau, the gate (34)-(35) and rule (33) or Q_sl's theta_sl under its
+  tau, each relative to its threshold): for a run with a false identification its largest value at
+  the quiet samples (positive: where eta = 1), for the others its largest value at the quiet
+  samples without eta = 1 (below zero: how near the rules came; an eta = 1 explained by a stall onset
+  does not count). So it is positive exactly for a false identification.
 - :func:`jams`: the first eta = 1 (either method) on a jammed rod, a jam taken for a stall.
 
 With a temperature the monitors also give smooth versions (``smooth_log_*`` of the theta
@@ -130,7 +131,7 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
         late = (state.worst_latency > s.stall_window_s) | (state.identified < state.n_events)
         columns = {"stall_events": state.n_events, "stall_seen": jnp.isfinite(end.event_start),
                    "stall_theta_peak_min": finite_or_nan(state.peak_min), "stall_missed_detection": missed,
-                   "stall_missed_detection_margin": void(end.ok, -decision.relative(state.peak_min, tau))}
+                   "stall_missed_detection_margin": void(end.ok, decision.below(state.peak_min, tau))}
         for i, method in enumerate(METHODS):
             columns[f"stall_identified_{method}"] = state.identified[i]
             columns[f"stall_worst_latency_{method}_s"] = finite_or_nan(state.worst_latency[i])
@@ -138,7 +139,7 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
         if state.soft is not None:
             log_min = -smooth.softmax_value(temperature, state.soft[1])
             columns["smooth_log_stall_theta_peak_min"] = log_min
-            columns["stall_missed_detection_margin_smooth"] = void(end.ok, -decision.relative(jnp.exp(log_min), tau))
+            columns["stall_missed_detection_margin_smooth"] = void(end.ok, decision.below(jnp.exp(log_min), tau))
         return columns
 
     return Monitor(init, update, finalize)
@@ -147,9 +148,9 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
 class FalseIdentification(NamedTuple):
     found: jnp.ndarray  # first counted eta = 1 outside stall loads
     pending: jnp.ndarray  # first eta = 1 of the pending interval (inf: none)
-    pending_max: jnp.ndarray  # largest margin at the samples with eta = 1 of the pending interval
-    best: jnp.ndarray  # largest margin at the quiet samples without eta = 1 and of the intervals that count
-    soft: tuple | None  # (best, pending interval) smooth maxima of the margin
+    quiet_max: jnp.ndarray  # largest margin at the quiet samples
+    quiet_max_off: jnp.ndarray  # ... at those without eta = 1
+    soft: tuple | None  # smooth maxima of the same
 
 
 def false_identification(s: Settings, truth: Truth, method: str, temperature=None) -> Monitor:
@@ -166,34 +167,28 @@ def false_identification(s: Settings, truth: Truth, method: str, temperature=Non
         # pending is a time or inf, so "explained" (a stall opens within the grace time) and "expired"
         # (the grace time is over) are disjoint, and an opening drops a pending time either way
         expired = w.t - state.pending > s.stall_grace_s
-        counts = expired & (state.pending < truth.onset_s)
-        dropped = expired | w.opening
-        pending = jnp.where(dropped, jnp.inf, state.pending)
-        pending_max = jnp.where(dropped, -jnp.inf, state.pending_max)
-        quiet = w.quiet & ~eta
-        best = jnp.where(counts, jnp.maximum(state.best, state.pending_max), state.best)
+        pending = jnp.where(expired | w.opening, jnp.inf, state.pending)
+        off = w.quiet & ~eta
         soft = state.soft
         if soft is not None:
-            soft = (smooth.softmax_step(temperature, smooth.softmax_merge(temperature, soft[0], soft[1], counts),
-                                        margin, quiet),
-                    smooth.softmax_step(temperature, smooth.reset(soft[1], dropped), margin, outside))
+            soft = (smooth.softmax_step(temperature, soft[0], margin, w.quiet),
+                    smooth.softmax_step(temperature, soft[1], margin, off))
         return FalseIdentification(
             jnp.minimum(state.found, jnp.where(expired, state.pending, jnp.inf)),
             jnp.where(outside & (pending == jnp.inf), w.t, pending),
-            jnp.where(outside, jnp.maximum(pending_max, margin), pending_max),
-            jnp.where(quiet, jnp.maximum(best, margin), best), soft)
+            jnp.where(w.quiet, jnp.maximum(state.quiet_max, margin), state.quiet_max),
+            jnp.where(off, jnp.maximum(state.quiet_max_off, margin), state.quiet_max_off), soft)
 
     def finalize(state: FalseIdentification, end: Windows) -> dict:
         found = jnp.minimum(state.found, state.pending)
-        counts = state.pending < truth.onset_s
-        best = jnp.where(counts, jnp.maximum(state.best, state.pending_max), state.best)
         flag = end.ok & (found < truth.onset_s)
+        on, off = state.quiet_max, state.quiet_max_off
         columns = {f"eta_false_{method}": flag, f"eta_false_{method}_time_s": finite_or_nan(found),
-                   f"eta_false_{method}_margin": void(end.ok, jnp.where(flag, jnp.maximum(best, tiny(best)),
-                                                                        jnp.minimum(best, -tiny(best))))}
+                   f"eta_false_{method}_margin": void(end.ok, jnp.where(flag, jnp.maximum(on, tiny(on)),
+                                                                        jnp.minimum(off, -tiny(off))))}
         if state.soft is not None:
-            kept = smooth.softmax_merge(temperature, state.soft[0], state.soft[1], counts)
-            columns[f"eta_false_{method}_margin_smooth"] = void(end.ok, smooth.softmax_value(temperature, kept))
+            columns[f"eta_false_{method}_margin_smooth"] = void(end.ok, jnp.where(
+                flag, smooth.softmax_value(temperature, state.soft[0]), smooth.softmax_value(temperature, state.soft[1])))
         return columns
 
     return Monitor(init, update, finalize)
