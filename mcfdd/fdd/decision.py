@@ -16,8 +16,8 @@ confirmation time (the usual confirmation of industrial monitors; 0 s confirms a
 keeps short noise-driven signatures from raising alarms.
 
 A confirmed decision also has a signed statistic (:func:`confirmed_margin`), on board like the
-decision itself, that is positive exactly where the decision is confirmed: the scoring's false
-alarm and missed detection margins (DESIGN.md section 5a) are its extremes over their windows.
+decision itself, positive where the decision is confirmed: the scoring's false alarm and missed
+detection margins (DESIGN.md section 5a) are its extremes over their windows.
 """
 
 from __future__ import annotations
@@ -94,24 +94,24 @@ def threshold(theta, tau):
     return theta >= tau
 
 
-def confirmed_margin(confirm_s, scale, run_min, margin, decided, held, confirmed, dt_s: float):
-    """Signed statistic of a confirmed decision, positive exactly where ``confirmed``. Returns (new run
-    minimum, statistic), in the units of ``margin``.
+def confirmed_margin(confirm_s, scale, run_min, margin, decided, held, dt_s: float):
+    """Signed statistic of a confirmed decision, positive where it is confirmed (up to rounding). Returns
+    (new run minimum, statistic), in the units of ``margin``.
 
     ``margin`` is the sample's signed margin of the decision (positive where it is decided, up to
-    rounding), ``decided`` the decision of the sample, ``held`` the time it has been held (the state
-    of :func:`confirm_step` after this sample, s) and ``confirmed`` its output. While decided, the
+    rounding), ``decided`` the decision of the sample and ``held`` the time it has been held (the
+    state of :func:`confirm_step` after this sample, s). While decided, the
     statistic is the smaller of the run minimum (the least margin over the current run of decided
     samples) and the shortfall of the run against the confirmation time as a fraction of it, times
     ``scale``: ``scale (held - (confirm_s - dt/2)) / max(confirm_s, dt)``; it turns positive when the
     run is confirmed and stays positive while every sample of the run is decided. Undecided samples
     score their own margin minus a whole confirmation's shortfall, so the statistic is continuous
-    where a run starts. Where rounding leaves the raw value on the wrong side of zero, it is set to
-    the smallest normal number of that sign: the sign is the decision's own.
+    where a run starts. Its sign differs from the confirmation only within rounding of zero (the
+    margins of the samples against the comparisons that decide them); the scoring makes it exact
+    (:mod:`mcfdd.analysis.scoring.loe`).
     """
     run_min = jnp.where(held > 0.0, jnp.minimum(run_min, margin), margin)
     need = confirm_s - 0.5 * dt_s
     per_s = scale / jnp.maximum(confirm_s, dt_s)
-    raw = jnp.where(decided, jnp.minimum(run_min, (held - need) * per_s), margin - jnp.maximum(need, 0.0) * per_s)
-    tiny = jnp.finfo(jnp.result_type(raw)).tiny
-    return run_min, jnp.where(confirmed, jnp.maximum(raw, tiny), jnp.minimum(raw, -tiny))
+    return run_min, jnp.where(decided, jnp.minimum(run_min, (held - need) * per_s),
+                              margin - jnp.maximum(need, 0.0) * per_s)

@@ -117,7 +117,7 @@ class FddOutputs(NamedTuple):
     decoded: jnp.ndarray  # model id of the signature, -1 for none
     detected: jnp.ndarray  # identification: confirmed model id, -1 for no decision
     fault_detected: jnp.ndarray  # detection: the fault-free model rejected, confirmed (an LOE fault is present)
-    # signed statistic of fault_detected, positive exactly where it is set (:func:`decision.confirmed_margin`)
+    # signed statistic of fault_detected, positive where it is set up to rounding (:func:`decision.confirmed_margin`)
     detection_margin: jnp.ndarray
     r_stall: jnp.ndarray
     theta_stall: jnp.ndarray
@@ -234,17 +234,16 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
     gate_margin = once(stall.conditions_margin(stl.signal, u_c, u), params.one)
-    gate = once(gate_margin >= 0.0, params.one)  # both methods' gate, (34)-(35)
+    gate = gate_margin >= 0.0  # both methods' gate, (34)-(35)
     signal, eta_signal, slow = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
     eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
     both = once(jnp.minimum(decision.relative(theta_stall, stl.tau), gate_margin), params.one)
-    eta_margins = once((jnp.minimum(both, slow), jnp.minimum(both, decision.below(theta_sl, stl.model.tau))),
-                       params.one)
+    eta_margins = (jnp.minimum(both, slow), jnp.minimum(both, decision.below(theta_sl, stl.model.tau)))
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
     stall_aware = since_stall <= loe.stall_hold_s
-    decoded = once(jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited)), params.one)
+    decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
     confirm, detected = decision.confirm_step(loe.confirm_s, state.confirm, decoded, dt_s)
     detected = once(detected, params.one)
     contrast = theta[0] - jnp.min(theta[1:])
@@ -257,7 +256,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     ratio = once(theta / jnp.where(theta_u > 0.0, theta_u, 1.0), params.one)
     margin = once(rejection_margin(loe, ratio[0], contrast * per_u, theta_w, since_stall), params.one)
     detect_min, detection_margin = decision.confirmed_margin(loe.detection_confirm_s, loe.detection_tau,
-                                                             state.detect_min, margin, rejected, detect[1], fault, dt_s)
+                                                             state.detect_min, margin, rejected, detect[1], dt_s)
     detection_margin = once(detection_margin, params.one)
 
     new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, valid, error_lp, confirm, detect, detect_min,

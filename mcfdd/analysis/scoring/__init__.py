@@ -59,7 +59,7 @@ def observer(settings: Settings, truth: Truth, monitor: Monitor) -> Observer:
     """A run's observer (:class:`mcfdd.analysis.simulate.Observer`): the windows of each sample computed
     once and passed to ``monitor``; nothing kept per step. Its state is (windows' events, monitor state)."""
     def init(dtype):
-        return events_init(dtype), monitor.init(dtype)
+        return events_init(dtype, truth.accept.shape[-1]), monitor.init(dtype)
 
     def update(state, t_s, plant, fdd):
         events, inner = state

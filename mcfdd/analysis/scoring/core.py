@@ -89,22 +89,23 @@ class Windows(NamedTuple):
     in_window: jnp.ndarray
     excited: jnp.ndarray
     ratio: jnp.ndarray  # (N,) theta_i / ||u||
-    ok: jnp.ndarray  # every sample so far finite
+    ok: jnp.ndarray | None  # at the end of the run (None at a sample): every sample's numbers finite
 
 
 class Events(NamedTuple):
-    """State of the windows: the stall event under way and the run's finiteness."""
+    """State of the windows: the stall event under way and the monitored signals of the last sample."""
 
     in_event: jnp.ndarray
     start: jnp.ndarray
     max_error: jnp.ndarray
     last_end: jnp.ndarray
-    finite: jnp.ndarray
+    monitored: tuple  # (u, theta_stall, theta (N,)) of the last sample
 
 
-def events_init(dtype) -> Events:
+def events_init(dtype, n_models: int) -> Events:
     inf = jnp.asarray(jnp.inf, dtype)
-    return Events(jnp.asarray(False), inf, jnp.zeros((), dtype), -inf, jnp.asarray(True))
+    zero = jnp.zeros((), dtype)
+    return Events(jnp.asarray(False), inf, zero, -inf, (zero, zero, jnp.zeros(n_models, dtype)))
 
 
 def _relevant(s: Settings, events: Events, t, closing):
@@ -116,14 +117,13 @@ def _relevant(s: Settings, events: Events, t, closing):
 def windows(s: Settings, truth: Truth, events: Events, t, plant: PlantOutputs, fdd: FddOutputs):
     """The windows of the sample at time t. Returns (new events state, :class:`Windows`)."""
     stall_now = plant.stall
-    closing = once(events.in_event & ~stall_now, s.one)
+    closing = events.in_event & ~stall_now
     relevant = _relevant(s, events, t, closing)
     last_end = jnp.where(closing, t, events.last_end)
-    opening = once(stall_now & ~events.in_event, s.one)
+    opening = stall_now & ~events.in_event
     error = jnp.abs(plant.u_c_m - plant.x_m)
     start = jnp.where(opening, t, events.start)
     max_error = jnp.where(opening, error, jnp.maximum(events.max_error, jnp.where(stall_now, error, 0.0)))
-    finite = jnp.isfinite(plant.u_m) & jnp.isfinite(fdd.theta_stall) & jnp.all(jnp.isfinite(fdd.theta))
     settled = t >= s.settle_s
     clear = once(~stall_now & (t - last_end > s.stall_grace_s), s.one)
     before_fault = t < truth.onset_s
@@ -132,17 +132,26 @@ def windows(s: Settings, truth: Truth, events: Events, t, plant: PlantOutputs, f
         relevant=relevant, event_start=start, in_stall_window=stall_now & (t - start <= s.stall_window_s),
         clear=clear, quiet=once(settled & before_fault & clear, s.one),
         in_window=once((t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s), s.one),
-        excited=fdd.excited, ratio=fdd.ratio, ok=events.finite & finite)
-    return Events(stall_now, start, max_error, last_end, w.ok), w
+        excited=fdd.excited, ratio=fdd.ratio, ok=None)
+    return Events(stall_now, start, max_error, last_end, (plant.u_m, fdd.theta_stall, fdd.theta)), w
 
 
 def end_windows(s: Settings, events: Events, t_end) -> Windows:
-    """The windows of the end of a run at t_end: the event under way closes; no sample is scored."""
+    """The windows of the end of a run at t_end: the event under way closes; no sample is scored.
+
+    ``ok``: the measured position and the detectors' theta stayed finite at every sample. It is
+    decided on the last sample: a non-finite measurement makes the residuals non-finite (a gated
+    filter restarts from the measurement, which does not help), and a non-finite residual stays in
+    the Narendra evaluators' integrators for good (eq. 14 forgets by a factor and never restarts;
+    0 times inf is nan), so every theta after it is non-finite too (tested).
+    """
     false = jnp.asarray(False)
+    u, theta_stall, theta = events.monitored
     return Windows(t=t_end, settled=false, before_fault=false, stall=false, opening=false, closing=events.in_event,
                    relevant=_relevant(s, events, t_end, events.in_event), event_start=events.start,
                    in_stall_window=false, clear=false, quiet=false, in_window=false, excited=false,
-                   ratio=jnp.zeros(()), ok=events.finite)
+                   ratio=jnp.zeros(()),
+                   ok=jnp.isfinite(u) & jnp.isfinite(theta_stall) & jnp.all(jnp.isfinite(theta)))
 
 
 class Monitor(NamedTuple):
@@ -197,3 +206,9 @@ def void(ok, x):
 def tiny(x):
     """The smallest positive normal number of x's dtype: where a margin's sign is forced, its magnitude."""
     return jnp.finfo(jnp.result_type(x)).tiny
+
+
+def signed(flag, margin):
+    """``margin`` with the sign of ``flag`` (positive where set, negative elsewhere): where the two
+    disagree, which happens only within rounding of zero, the smallest normal number of that sign."""
+    return jnp.where(flag, jnp.maximum(margin, tiny(margin)), jnp.minimum(margin, -tiny(margin)))

@@ -11,18 +11,19 @@ confirmed; the FDD's ``fault_detected``):
   ``[t_f, t_f + t_detec]``; ``must_detect``: a faulty run whose nearest model is a fault model;
   ``missed``: such a run not detected;
 - ``false_alarm_margin``: the largest over the quiet samples of the FDD's signed statistic of the
-  confirmed rejection (:func:`mcfdd.fdd.decision.confirmed_margin`), positive exactly where the
-  detection is set. At a sample that rejects, the statistic is the smaller of the least rejection
-  margin over the current run of rejecting samples and the run's shortfall against the
-  confirmation time (as a fraction of it); at a sample that does not, its own rejection margin
-  minus one whole confirmation. The rejection margin is the least of ``(theta_0 / ||u|| - tau_d) /
-  tau_d``, ``(contrast - c_d) / tau_d``, the excitation over its floor and the time since a stall
-  identification over the hold, each relative (:func:`mcfdd.fdd.system.rejection_margin`). So the
-  margin is positive exactly for a false alarm; below zero it says how far the run came: a
-  confirmation cut short at 60 % of its time scores -0.4, a run whose best sample fell 5 % short of
-  tau_d about -1.05.
-- ``missed_margin``: minus the largest statistic over the detection window, for runs that must be
-  detected (nan elsewhere): positive exactly for a missed detection.
+  confirmed rejection (:func:`mcfdd.fdd.decision.confirmed_margin`, in units of theta_0 / ||u||),
+  signed by the verdict (where the statistic and the verdict disagree, only within rounding of
+  zero, the smallest normal number of the verdict's sign): positive exactly for a false alarm. At a
+  sample that rejects, the statistic is the smaller of the least rejection margin over the current
+  run of rejecting samples and the run's shortfall against the confirmation time as a fraction of
+  it, times ``detection_tau``; at a sample that does not, its own rejection margin less a whole
+  confirmation's shortfall. The rejection margin is the least of ``theta_0 / ||u|| - tau_d``,
+  ``contrast - c_d`` and the excitation over its floor and the time since a stall identification
+  over the hold, each relative and times tau_d (:func:`mcfdd.fdd.system.rejection_margin`). So
+  below zero the margin says how far the run came: a rejection held for 60 % of the confirmation
+  time scores -0.4 tau_d, a run whose best sample fell 0.01 short of tau_d about -(0.01 + tau_d).
+- ``missed_margin``: minus the largest statistic over the detection window, signed by the verdict,
+  for runs that must be detected (nan elsewhere): positive exactly for a missed detection.
 
 :func:`identification`, the identification level (the decoded signature (15), confirmed): the
 first fault model identified before any fault (a ``false_identification`` in fault-free runs) or
@@ -37,8 +38,9 @@ fire (those not accepted for the true fault; identification level, eq. 27).
 
 Margins are nan for a void run (its numbers went non-finite). With a temperature T the monitors
 also give the smooth versions (``*_smooth``: the maximum over samples replaced by the log-sum-exp
-at T, :mod:`mcfdd.analysis.scoring.smooth`; the statistics of :func:`ratios` on their logarithm,
-``smooth_log_*``), which tend to the hard ones as T -> 0.
+at T, :mod:`mcfdd.analysis.scoring.smooth`, signed by the verdict as the hard margin is; the
+statistics of :func:`ratios` on their logarithm, ``smooth_log_*``), which tend to the hard ones as
+T -> 0.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from mcfdd.analysis.scoring import smooth
-from mcfdd.analysis.scoring.core import Monitor, Sample, Settings, Truth, Windows, finite_or_nan, first, void
+from mcfdd.analysis.scoring.core import (Monitor, Sample, Settings, Truth, Windows, finite_or_nan, first, signed,
+                                         void)
 from mcfdd.compute import once
 from mcfdd.fdd import decision
 
@@ -85,16 +88,19 @@ def detection(s: Settings, truth: Truth, temperature=None) -> Monitor:
         faulty = jnp.isfinite(truth.onset_s)
         must = ok & faulty & (truth.nearest >= 1)
         detected = ok & faulty & jnp.isfinite(state.det_time)
+        false_alarm = ok & jnp.isfinite(state.fa_time)
         columns = {
-            "false_alarm": ok & jnp.isfinite(state.fa_time), "false_alarm_time_s": state.fa_time,
+            "false_alarm": false_alarm, "false_alarm_time_s": state.fa_time,
             "detected": detected, "detection_time_s": jnp.where(detected, state.det_time, jnp.nan),
             "must_detect": must, "missed": must & ~detected,
-            "false_alarm_margin": void(ok, state.fa_margin),
-            "missed_margin": jnp.where(must, -state.det_margin, jnp.nan),
+            "false_alarm_margin": void(ok, signed(false_alarm, state.fa_margin)),
+            "missed_margin": jnp.where(must, -signed(detected, state.det_margin), jnp.nan),
         }
         if state.soft is not None:
-            columns["false_alarm_margin_smooth"] = void(ok, smooth.softmax_value(temperature, state.soft[0]))
-            columns["missed_margin_smooth"] = jnp.where(must, -smooth.softmax_value(temperature, state.soft[1]),
+            columns["false_alarm_margin_smooth"] = void(ok, signed(false_alarm, smooth.softmax_value(temperature,
+                                                                                                      state.soft[0])))
+            columns["missed_margin_smooth"] = jnp.where(must, -signed(detected, smooth.softmax_value(temperature,
+                                                                                                       state.soft[1])),
                                                         jnp.nan)
         return columns
 

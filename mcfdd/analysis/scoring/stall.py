@@ -18,17 +18,20 @@ Stall events are the plant's own truth (the windows' ``opening``/``closing``, DE
   before any fault (``eta_false_<method>``, first time). Not counted within ``stall_grace_s`` after
   an event, nor just before one begins: a sample with eta = 1 is held pending for the grace time
   and dropped if an event opens meanwhile (the plant flags a stall once the pressure has all but
-  vanished, shortly after the rod slowed down). The margin (``eta_false_<method>_margin``) is built
-  from the FDD's signed eta margin of each sample (:class:`mcfdd.fdd.system.FddOutputs`: the least
-  of the detector's theta over tau, the gate (34)-(35) and rule (33) or Q_sl's theta_sl under its
-  tau, each relative to its threshold): for a run with a false identification its largest value at
-  the quiet samples (positive: where eta = 1), for the others its largest value at the quiet
-  samples without eta = 1 (below zero: how near the rules came; an eta = 1 explained by a stall onset
-  does not count). So it is positive exactly for a false identification.
+  vanished, shortly after the rod slowed down). The margin (``eta_false_<method>_margin``) is the
+  largest over the quiet samples of the FDD's signed eta margin (:class:`mcfdd.fdd.system.FddOutputs`:
+  the least of the detector's theta over tau, the gate (34)-(35) and rule (33) or Q_sl's theta_sl
+  under its tau, each relative to its threshold; its sign is eta's), signed by the verdict:
+  positive exactly for a false identification. Below zero it says how near the rules
+  came; a run whose only eta = 1 outside stall loads was explained by a stall onset within the
+  grace time scores just below zero (a later onset would have made it count).
 - :func:`jams`: the first eta = 1 (either method) on a jammed rod, a jam taken for a stall.
 
-With a temperature the monitors also give smooth versions (``smooth_log_*`` of the theta
-statistics, ``*_margin_smooth`` of the margins), which tend to the hard ones as T -> 0.
+Margins are signed by their verdict (:func:`mcfdd.analysis.scoring.core.signed`: where a margin and
+its verdict disagree, only within rounding of zero, the smallest normal number of the verdict's
+sign) and nan for a void run. With a temperature the monitors also give smooth versions
+(``smooth_log_*`` of the theta statistics, ``*_margin_smooth`` of the margins, signed the same
+way), which tend to the hard ones as T -> 0.
 """
 
 from __future__ import annotations
@@ -38,8 +41,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 
 from mcfdd.analysis.scoring import smooth
-from mcfdd.analysis.scoring.core import Monitor, Sample, Settings, Truth, Windows, finite_or_nan, first, tiny, void
-from mcfdd.compute import once
+from mcfdd.analysis.scoring.core import (Monitor, Sample, Settings, Truth, Windows, finite_or_nan, first, signed,
+                                         void)
 from mcfdd.fdd import decision
 
 METHODS = ("signal", "model")
@@ -64,15 +67,14 @@ def detector(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
 
     def finalize(state: Detector, end: Windows) -> dict:
         fired = end.ok & (state.theta_max_free >= tau)
-        margin = decision.relative(state.theta_max_free, tau)
         columns = {"stall_theta_max_free": finite_or_nan(state.theta_max_free), "stall_false_detection": fired,
-                   "stall_false_detection_margin": void(end.ok, jnp.where(fired, jnp.maximum(margin, tiny(margin)),
-                                                                          margin))}
+                   "stall_false_detection_margin": void(end.ok, signed(fired, decision.relative(state.theta_max_free,
+                                                                                                tau)))}
         if state.soft is not None:
             log_max = smooth.softmax_value(temperature, state.soft)
             columns["smooth_log_stall_theta_max_free"] = log_max
-            columns["stall_false_detection_margin_smooth"] = void(end.ok, jnp.where(
-                log_max > -jnp.inf, decision.relative(jnp.exp(log_max), tau), -jnp.inf))
+            columns["stall_false_detection_margin_smooth"] = void(end.ok, signed(fired, jnp.where(
+                log_max > -jnp.inf, decision.relative(jnp.exp(log_max), tau), -jnp.inf)))
         return columns
 
     return Monitor(init, update, finalize)
@@ -100,7 +102,7 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
     def close(state: Events, w: Windows) -> Events:
         """Book the event closing at w (if it is relevant)."""
         relevant = w.relevant
-        found = once(relevant & jnp.isfinite(state.eta), s.one)
+        found = relevant & jnp.isfinite(state.eta)
         soft = state.soft
         if soft is not None:
             soft = (soft[0], smooth.softmax_step(temperature, soft[1], -smooth.softmax_value(temperature, soft[0]),
@@ -131,7 +133,7 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
         late = (state.worst_latency > s.stall_window_s) | (state.identified < state.n_events)
         columns = {"stall_events": state.n_events, "stall_seen": jnp.isfinite(end.event_start),
                    "stall_theta_peak_min": finite_or_nan(state.peak_min), "stall_missed_detection": missed,
-                   "stall_missed_detection_margin": void(end.ok, decision.below(state.peak_min, tau))}
+                   "stall_missed_detection_margin": void(end.ok, signed(missed, decision.below(state.peak_min, tau)))}
         for i, method in enumerate(METHODS):
             columns[f"stall_identified_{method}"] = state.identified[i]
             columns[f"stall_worst_latency_{method}_s"] = finite_or_nan(state.worst_latency[i])
@@ -139,7 +141,8 @@ def events(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
         if state.soft is not None:
             log_min = -smooth.softmax_value(temperature, state.soft[1])
             columns["smooth_log_stall_theta_peak_min"] = log_min
-            columns["stall_missed_detection_margin_smooth"] = void(end.ok, decision.below(jnp.exp(log_min), tau))
+            columns["stall_missed_detection_margin_smooth"] = void(end.ok, signed(missed, decision.below(
+                jnp.exp(log_min), tau)))
         return columns
 
     return Monitor(init, update, finalize)
@@ -149,16 +152,14 @@ class FalseIdentification(NamedTuple):
     found: jnp.ndarray  # first counted eta = 1 outside stall loads
     pending: jnp.ndarray  # first eta = 1 of the pending interval (inf: none)
     quiet_max: jnp.ndarray  # largest margin at the quiet samples
-    quiet_max_off: jnp.ndarray  # ... at those without eta = 1
-    soft: tuple | None  # smooth maxima of the same
+    soft: smooth.SoftMax | None  # its smooth version
 
 
 def false_identification(s: Settings, truth: Truth, method: str, temperature=None) -> Monitor:
     """eta = 1 of ``method`` ('signal' or 'model') outside stall loads: a false stall identification."""
     def init(dtype):
         inf = jnp.asarray(jnp.inf, dtype)
-        soft = None if temperature is None else (smooth.softmax_init(dtype), smooth.softmax_init(dtype))
-        return FalseIdentification(inf, inf, -inf, -inf, soft)
+        return FalseIdentification(inf, inf, -inf, None if temperature is None else smooth.softmax_init(dtype))
 
     def update(state: FalseIdentification, w: Windows, sample: Sample) -> FalseIdentification:
         eta = getattr(sample.fdd, f"eta_{method}")
@@ -168,27 +169,22 @@ def false_identification(s: Settings, truth: Truth, method: str, temperature=Non
         # (the grace time is over) are disjoint, and an opening drops a pending time either way
         expired = w.t - state.pending > s.stall_grace_s
         pending = jnp.where(expired | w.opening, jnp.inf, state.pending)
-        off = w.quiet & ~eta
         soft = state.soft
         if soft is not None:
-            soft = (smooth.softmax_step(temperature, soft[0], margin, w.quiet),
-                    smooth.softmax_step(temperature, soft[1], margin, off))
+            soft = smooth.softmax_step(temperature, soft, margin, w.quiet)
         return FalseIdentification(
             jnp.minimum(state.found, jnp.where(expired, state.pending, jnp.inf)),
             jnp.where(outside & (pending == jnp.inf), w.t, pending),
-            jnp.where(w.quiet, jnp.maximum(state.quiet_max, margin), state.quiet_max),
-            jnp.where(off, jnp.maximum(state.quiet_max_off, margin), state.quiet_max_off), soft)
+            jnp.where(w.quiet, jnp.maximum(state.quiet_max, margin), state.quiet_max), soft)
 
     def finalize(state: FalseIdentification, end: Windows) -> dict:
         found = jnp.minimum(state.found, state.pending)
         flag = end.ok & (found < truth.onset_s)
-        on, off = state.quiet_max, state.quiet_max_off
         columns = {f"eta_false_{method}": flag, f"eta_false_{method}_time_s": finite_or_nan(found),
-                   f"eta_false_{method}_margin": void(end.ok, jnp.where(flag, jnp.maximum(on, tiny(on)),
-                                                                        jnp.minimum(off, -tiny(off))))}
+                   f"eta_false_{method}_margin": void(end.ok, signed(flag, state.quiet_max))}
         if state.soft is not None:
-            columns[f"eta_false_{method}_margin_smooth"] = void(end.ok, jnp.where(
-                flag, smooth.softmax_value(temperature, state.soft[0]), smooth.softmax_value(temperature, state.soft[1])))
+            columns[f"eta_false_{method}_margin_smooth"] = void(end.ok, signed(flag, smooth.softmax_value(temperature,
+                                                                                                          state.soft)))
         return columns
 
     return Monitor(init, update, finalize)
