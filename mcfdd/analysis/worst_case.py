@@ -7,21 +7,14 @@ Carlo as the cheap approximations. Here the closed loop and the FDD are differen
 worst case is searched by multi-start projected gradient ascent (Adam, optax) over the continuous
 scenario parameters, from the best points of a Sobol screening.
 
-Statistics, per detector, are the scoring monitors' (:mod:`mcfdd.analysis.scoring`, the bounds
-:data:`mcfdd.analysis.scoring.BOUNDS`), run in the same scan as plant and FDD:
-
-- stall detector, free: theta_stall at the quiet samples (outside stall loads, after the settling
-  time, before any fault); detect: per relevant stall event the peak of theta_stall within
-  ``stall_window_s`` of the onset, smallest over the run's events;
-- LOE bank, free: the fault-free filter's ratio theta_0 / ||u|| at the excited quiet samples;
-  detect: over the detection window, the peak of the smallest ratio among the filters that must
-  fire (those not accepted for the true fault).
-
-The hard values are the campaign's columns; the search ascends their smooth versions, which the
-same monitors give with a temperature (the maximum over time replaced by a log-sum-exp on the
-logarithm of the statistic, :mod:`mcfdd.analysis.scoring.smooth`), so the temperature T is
-relative (0.05: about 5 %) and the same for every detector. As T -> 0 the smooth values tend to
-the hard ones.
+Statistics are the scoring monitors' bounds (:data:`mcfdd.analysis.scoring.BOUNDS`: the stall
+detector's theta at the quiet samples and its least peak over relevant stall events; the LOE
+bank's fault-free ratio at the excited quiet samples and, over the detection window, the peak of
+the smallest ratio among the filters that must fire), run in the same scan as plant and FDD. The
+hard values are the campaign's columns; the search ascends their smooth versions, which the same
+monitors give with a temperature (a log-sum-exp on the logarithm of the statistic,
+:mod:`mcfdd.analysis.scoring.smooth`: T is relative, 0.05 about 5 %, and the same for every
+detector; as T -> 0 the smooth values tend to the hard ones).
 
 Search space: the ``range`` axes of a campaign's scenario space, mapped from the unit cube as
 :func:`mcfdd.analysis.scenarios.design_table` does (Vcas between its lower bound and the smaller of
