@@ -29,8 +29,8 @@ stall truth, the scenario's fault onset and the FDD's excitation, and passed to 
 - in_window: the detection window ``[t_f, t_f + t_detec]``;
 - excited and the ratios theta_i / ||u|| of the FDD.
 
-The tracker of the stall events and of the run's finiteness is the windows' own small state
-(:class:`Events`), carried beside the monitors'.
+The windows' own small state (:class:`Events`: the stall event under way, the last sample's
+monitored signals for the run's status) is carried beside the monitors'.
 """
 
 from __future__ import annotations
