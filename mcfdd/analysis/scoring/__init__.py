@@ -55,7 +55,7 @@ def monitors(settings: Settings, truth: Truth, fdd_params, temperature=None) -> 
         ("stall_events", stall.events(settings, truth, tau, temperature)),
         *((f"false_identification_{m}", stall.false_identification(settings, truth, m, temperature))
           for m in stall.METHODS),
-        ("stall_detector", stall.detector(settings, truth, tau, temperature)),
+        ("stall_detector", stall.detector(settings, truth, tau, fdd_params.stall.evaluator, temperature)),
         ("loe_ratios", loe.ratios(settings, truth, temperature)),
         ("peaks", truth_monitors.peaks(settings, truth)),
         ("jams", stall.jams(settings, truth)),
