@@ -446,7 +446,7 @@ def test_every_margin_is_positive_exactly_for_its_flag_on_2048_runs(name):
         "space.duration_s": [2.0, 6.0], "space.hold_s": [1.0, 3.0], "space.vcas_kt": [300.0, 380.0],
         "space.hinge_scale": [1.1, 1.4], "evaluation.settle_s": 1.0, "evaluation.stall_grace_s": 0.2,
         "fdd.loe.detection_tau": 0.04, "fdd.loe.detection_contrast": 0.0, "fdd.loe.detection_confirm_s": 0.2,
-        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 2.0, "fdd.stall.model.tau_deg": 150.0,
+        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 1.4, "fdd.stall.model.tau_deg": 150.0,
         "fdd.stall.signal.rate_min_deg_s": 60.0, "fdd.stall.signal.command_min_deg": 2.0,
         "fdd.stall.signal.position_min_deg": 2.0, "fdd.stall.signal.error_min_deg": 0.2})
     with precision(name):

@@ -7,14 +7,34 @@ Carlo as the cheap approximations. Here the closed loop and the FDD are differen
 worst case is searched by multi-start projected gradient ascent (Adam, optax) over the continuous
 scenario parameters, from the best points of a Sobol screening.
 
-Statistics are the scoring monitors' bounds (:data:`mcfdd.analysis.scoring.BOUNDS`: the stall
-detector's theta at the quiet samples and its least peak over relevant stall events; the LOE
-bank's fault-free ratio at the excited quiet samples and, over the detection window, the peak of
-the smallest ratio among the filters that must fire), run in the same scan as plant and FDD. The
-hard values are the campaign's columns; the search ascends their smooth versions, which the same
-monitors give with a temperature (a log-sum-exp on the logarithm of the statistic,
-:mod:`mcfdd.analysis.scoring.smooth`: T is relative, 0.05 about 5 %, and the same for every
-detector; as T -> 0 the smooth values tend to the hard ones).
+Statistics are the scoring monitors' columns (:func:`statistic`), run in the same scan as plant
+and FDD, so a witness's hard value is what a campaign of its scenario scores: the theta bounds of
+:data:`mcfdd.analysis.scoring.BOUNDS` (the stall detector's theta at the quiet samples, less the
+evaluator's memory of stall loads, and its least peak over relevant stall events; the LOE bank's
+fault-free ratio at the excited quiet samples and, over the detection window, the peak of the
+smallest ratio among the filters that must fire) and, as detector 'loe_detection', the LOE
+detection level's signed statistic (:data:`mcfdd.analysis.scoring.DETECTION`: the confirmed
+rejection with contrast, excitation floor, gates and confirmation, whose sign is the verdict). The
+search ascends their smooth versions, which the same monitors give with a temperature (a
+log-sum-exp, on the logarithm of a theta statistic, :mod:`mcfdd.analysis.scoring.smooth`: T is
+relative there, 0.05 about 5 %; on the detection statistic in its own units); as T -> 0 they tend
+to the hard ones.
+
+Design decisions (DESIGN.md section 5):
+
+- The stall detector's tau_f is scored as the campaign scores it (one monitor), and that
+  definition leaves out the evaluator's memory of stall loads (:mod:`mcfdd.analysis.scoring.stall`):
+  a stall that happened is the detector's fault, not fault-free operation, and its residual stays
+  in theta for about 1 / gamma (10 s) after it ends, far beyond the 0.5-s grace. Without that, the
+  search's tau_f on ``configs/worst_case_stall.toml`` was the memory of a 9-s stall (34 deg).
+- Events: a run whose bound does not exist (no relevant stall load for the stall detector's tau_d,
+  a run that need not be detected, a peak hinge-load fraction below ``min_load_fraction``) scores
+  -inf. A start that reaches such a point is replaced by the screening's next best point that has
+  the event (:func:`pool_from`, :class:`mcfdd.analysis.optimise.Restarts`); once the pool is used
+  up, it backtracks to its best point.
+- Time: the onset of a fault and the start of a manoeuvre are continuous axes where the space
+  gives them a range (``fault_onset_s``, ``t_start_s``); the extreme's timing is searched with
+  the rest.
 
 Search space: :mod:`mcfdd.analysis.search_space` (the campaign's continuous axes as a unit cube,
 categorical ones fixed per start, the traced scenario affine in the columns).
@@ -67,9 +87,24 @@ def evaluate(model, fdd_params, settings, box, anchors, u, keys, temperature, n_
     return jax.vmap(one)(anchors, u, keys)
 
 
-def smooth_column(detector: str, bound: str) -> str:
-    """The column of a bound's smooth logarithm."""
-    return f"smooth_log_{scoring.BOUNDS[(detector, bound)]}"
+class Statistic(NamedTuple):
+    """A bound read from the monitors' columns: ``sign * columns[hard]`` (``smooth``: its smooth version,
+    a logarithm where ``log``)."""
+
+    hard: str
+    smooth: str
+    sign: float
+    log: bool
+
+
+def statistic(detector: str, bound: str) -> Statistic:
+    """The statistic of a bound: the detectors' theta statistics (:data:`scoring.BOUNDS`, smoothed on their
+    logarithm) or, for 'loe_detection', the LOE detection level's signed statistic (:data:`scoring.DETECTION`)."""
+    if detector == "loe_detection":
+        name, sign = scoring.DETECTION[bound]
+        return Statistic(name, f"{name}_smooth", sign, False)
+    name = scoring.BOUNDS[(detector, bound)]
+    return Statistic(name, f"smooth_log_{name}", 1.0, True)
 
 
 def sense(bound: str) -> float:
@@ -77,19 +112,28 @@ def sense(bound: str) -> float:
     return 1.0 if bound == "free" else -1.0
 
 
+def admissible(columns: dict, min_load_fraction):
+    """Runs whose bound counts: those reaching a peak hinge-load fraction of ``min_load_fraction`` (0: all)."""
+    return (min_load_fraction <= 0.0) | (columns["peak_load_fraction"] >= min_load_fraction)
+
+
 @partial(jax.jit, static_argnames=STATIC + ("detector", "bound"))
 def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperature, n_steps: int, dt_s: float,
-                   substeps: int, kinds: tuple[int, ...], detector: str, bound: str):
-    """Score (smooth bound in log units, sign flipped for an infimum) and its gradient in u, per point.
+                   substeps: int, kinds: tuple[int, ...], detector: str, bound: str, min_load_fraction=0.0):
+    """Score (the smooth bound, in log units for theta statistics, sign flipped for an infimum; -inf where
+    the run does not count) and its gradient in u, per point.
 
     Returns (score (P,), (columns, x), gradient (P, d)).
     """
+    stat = statistic(detector, bound)
+
     def one(anchor, u, key):
         def score(u):
             columns, x = run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps, dt_s,
                                    substeps, kinds)
-            value = sense(bound) * columns[smooth_column(detector, bound)]
-            return jnp.where(jnp.isfinite(value), value, -jnp.inf), (columns, x)
+            value = sense(bound) * stat.sign * columns[stat.smooth]
+            keep = jnp.isfinite(value) & admissible(columns, min_load_fraction)
+            return jnp.where(keep, value, -jnp.inf), (columns, x)
 
         (value, aux), grad = jax.value_and_grad(score, has_aux=True)(u)
         return value, aux, jnp.where(jnp.isfinite(grad), grad, 0.0)
@@ -97,16 +141,18 @@ def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperatu
     return jax.vmap(one)(anchors, u, keys)
 
 
-def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> optimise.Trace:
+def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None,
+           restarts: optimise.Restarts | None = None) -> optimise.Trace:
     """Multi-start projected Adam ascent on [0, 1]^d with backtracking (:func:`mcfdd.analysis.optimise.backtracking`).
 
     ``score_and_grad_fn(u)`` returns (score (S,), aux, gradient (S, d)) for the S starts u (S, d);
-    a score of -inf marks an infeasible point. ``callback(i, score, aux)`` sees every evaluation.
-    Evaluations: S (iterations + 1).
+    a score of -inf marks an infeasible point: the start backtracks or, with ``restarts``, moves to
+    the next point of its pool. ``callback(i, score, aux)`` sees every evaluation. Evaluations: S
+    (iterations + 1).
     """
     return optimise.run(score_and_grad_fn, jnp.asarray(u0), optimise.backtracking(learning_rate), iterations,
                         maximize=True, project=lambda u: optax.projections.projection_box(u, 0.0, 1.0),
-                        callback=callback)
+                        callback=callback, restarts=restarts)
 
 
 def unit_points(space: SearchSpace, design: str, n: int, seed: int):
@@ -136,7 +182,9 @@ def extreme(values, bound: str):
 
 
 class Problem(NamedTuple):
-    """A bound to search: simulation, FDD, scoring and space. ``temperature`` in log units."""
+    """A bound to search: simulation, FDD, scoring and space. ``temperature`` in log units (theta
+    statistics) or in the statistic's units ('loe_detection'); runs below ``min_load_fraction`` of peak
+    hinge load do not count."""
 
     model: closed_loop.PlantModel
     fdd_params: system.FddParams
@@ -150,6 +198,7 @@ class Problem(NamedTuple):
     dt_s: float
     substeps: int
     dtype: type
+    min_load_fraction: float = 0.0
 
     def static(self) -> dict:
         return {"n_steps": self.n_steps, "dt_s": self.dt_s, "substeps": self.substeps, "kinds": self.space.kinds()}
@@ -157,7 +206,8 @@ class Problem(NamedTuple):
 
 class Points(NamedTuple):
     """Evaluated points: u (P, d), categorical columns, column values x (P, d), the smooth and hard
-    bound (P,) in the statistic's units (rod m for the stall detector) and the monitors' columns."""
+    bound (P,) in the statistic's units (rod m for the stall detector; nan where the run does not
+    count), the monitors' columns and, for a gradient search, the pool index each point started from."""
 
     u: np.ndarray
     categories: dict
@@ -165,6 +215,7 @@ class Points(NamedTuple):
     soft: np.ndarray
     hard: np.ndarray
     outcomes: dict
+    start: np.ndarray | None = None
 
 
 def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
@@ -183,9 +234,12 @@ def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
 
 def _points(problem: Problem, u, categories, columns, x) -> Points:
     columns = {k: np.asarray(v) for k, v in columns.items()}
+    stat = statistic(problem.detector, problem.bound)
+    keep = np.asarray(admissible(columns, problem.min_load_fraction))
+    smooth = np.asarray(columns[stat.smooth], dtype=float)
     return Points(np.asarray(u), categories, np.asarray(x),
-                  np.exp(np.asarray(columns[smooth_column(problem.detector, problem.bound)], dtype=float)),
-                  np.asarray(columns[scoring.BOUNDS[(problem.detector, problem.bound)]], dtype=float), columns)
+                  np.where(keep, np.exp(smooth) if stat.log else stat.sign * smooth, np.nan),
+                  np.where(keep, stat.sign * np.asarray(columns[stat.hard], dtype=float), np.nan), columns)
 
 
 def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> Points:
@@ -206,22 +260,41 @@ def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> 
     return _points(problem, u, categories, columns, x)
 
 
+class Pool(NamedTuple):
+    """Points a gradient search starts from, in order: u (P, d), categorical columns, keys and their
+    ``index`` (P,) (screening rows). The first S are the starts, the rest replace a start that loses the
+    event (:class:`mcfdd.analysis.optimise.Restarts`)."""
+
+    u: np.ndarray
+    categories: dict
+    keys: object
+    index: np.ndarray
+
+
 def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
-                    callback=None) -> list[Points]:
+                    callback=None, pool: Pool | None = None) -> list[Points]:
     """Projected gradient search (:func:`ascend`) from the starts u0 (S, d) with their categorical
-    columns and keys. Returns the evaluated points of every iteration (iterations + 1 of them);
-    ``callback(i, points)`` sees each."""
+    columns and keys or, given a ``pool``, from its first S points (u0, categories and keys are then its
+    first S), an infeasible start moving to the pool's next point. Returns the evaluated points of every
+    iteration (iterations + 1 of them; ``start``: the pool index of each); ``callback(i, points)`` sees each."""
     box = problem.space.box(problem.dtype)
+    starts = np.shape(u0)[0]
+    if pool is None:
+        pool = Pool(np.asarray(u0), categories, keys, np.arange(starts))
+    restarts = optimise.Restarts(pool.u, starts)
 
     def score_and_grad_fn(u):
-        anchors = anchors_at(problem, box, np.asarray(u), categories)
+        slots = restarts.slots.copy()
+        cats = {k: np.asarray(v)[slots] for k, v in pool.categories.items()}
+        anchors = anchors_at(problem, box, np.asarray(u), cats)
         score, (columns, x), grad = score_and_grad(
-            problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype), keys,
-            problem.temperature, detector=problem.detector, bound=problem.bound, **problem.static())
-        return score, _points(problem, u, categories, columns, x), grad
+            problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype),
+            pool.keys[slots], problem.temperature, detector=problem.detector, bound=problem.bound,
+            min_load_fraction=problem.min_load_fraction, **problem.static())
+        return score, _points(problem, u, cats, columns, x)._replace(start=pool.index[slots]), grad
 
     report = None if callback is None else (lambda i, score, points: callback(i, points))
-    return ascend(score_and_grad_fn, u0, iterations, learning_rate, report).aux
+    return ascend(score_and_grad_fn, pool.u[:starts], iterations, learning_rate, report, restarts).aux
 
 
 def sample(problem: Problem, design: str, n: int, seed: int, batch: int, first: int = 0) -> Points:
@@ -237,8 +310,21 @@ def budget(screening: int, starts: int, iterations: int) -> int:
     return screening + starts * (iterations + 1)
 
 
+def starts_of(pool: Pool, n: int):
+    """The first n points of a pool as starts: (u (n, d), categorical columns, keys)."""
+    return pool.u[:n], {k: np.asarray(v)[:n] for k, v in pool.categories.items()}, pool.keys[:n]
+
+
 def starts_from(screened: Points, n: int, bound: str, seed: int):
     """The n worst screened points as starts: (indices, u (n, d), categorical columns, keys)."""
-    idx = best_points(screened.hard, n, bound)
-    return idx, screened.u[idx], {k: np.asarray(v)[idx] for k, v in screened.categories.items()}, \
-        run_keys(seed, idx)
+    pool = pool_from(screened, n, bound, seed)
+    return (pool.index[:n], *starts_of(pool, n))
+
+
+def pool_from(screened: Points, starts: int, bound: str, seed: int) -> Pool:
+    """The screened points worst first: the ``starts`` worst, then every other one whose bound counts
+    (finite), in order, to replace a start that loses the event."""
+    order = best_points(screened.hard, len(screened.hard), bound)
+    idx = np.concatenate([order[:starts], [i for i in order[starts:] if np.isfinite(screened.hard[i])]]).astype(int)
+    return Pool(screened.u[idx], {k: np.asarray(v)[idx] for k, v in screened.categories.items()},
+                run_keys(seed, idx), idx)
