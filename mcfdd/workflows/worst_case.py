@@ -163,7 +163,8 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     for i, points in enumerate(iterations):
         frames.append(_points_frame(space, points, scale, value, sim.seed, points.start, method="gradient",
                                     start=points.start, iteration=i, index=np.arange(s.starts)))
-    restarted = len(np.unique(np.concatenate([p.start for p in iterations]))) - s.starts
+    used = len(np.unique(np.concatenate([p.start for p in iterations])))
+    restarted = used - s.starts
     start = time.perf_counter()
     mc = wc.sample(problem, "random", budget, sim.seed + 1, s.screening)
     times["monte_carlo"] = time.perf_counter() - start
@@ -186,14 +187,16 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     feasible = int(np.isfinite(screened.hard).sum())
     notes = [f"Worst case of the {what} over the config's scenario space: {s.screening} Sobol points "
              f"screened, the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
-             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in log "
-             f"units), against plain Monte Carlo (random design) with the same number of simulations ({budget}) and "
+             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in "
+             f"{'the statistic' if s.detector == 'loe_detection' else 'log'} units), against plain Monte Carlo "
+             f"(random design) with the same number of simulations ({budget}) and "
              f"with as many as run in the gradient search's time without compilation ({n_time}). A start whose "
              f"run loses the event (no bound: {feasible} of {s.screening} screened runs have one) is replaced by the "
              f"next best screened run that has it ({restarted} replacements). A gradient "
              f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
              f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
-             f"Values in {UNITS[s.detector]}."]
+             f"Values in {UNITS[s.detector]}.",
+             report.search_verdict(summ, value, s.bound, restarted, len(pool.index) - used)]
     label = f"{'tau_f' if s.bound == 'free' else 'tau_d'} candidates, {s.detector} detector ({value})"
     base = {"simulation": config.to_dict(sim), "plant": config.to_dict(cfg.plant), "fdd": config.to_dict(cfg.fdd)}
     return WorstCaseResult(df, summ, value, s.bound, label, notes, meta, base)
