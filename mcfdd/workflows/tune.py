@@ -72,6 +72,8 @@ class TuneResult:
         self.validation = validation
         self.threshold_scan, self.campaigns, self.compilations = threshold_scan, campaigns, compilations
         self.report_text, self.units, self.meta, self._source = report_text, units, meta, source
+        self.level = "identification" if detector == "loe" else "stall"
+        self.comparison = None  # detection level: the held-out campaigns before and after, paired (CompareResult)
 
     def plot(self, name: str = "history"):
         """'history': tau_f, tau_d and the normalised gap over the iterations, a matplotlib Figure."""
@@ -79,6 +81,8 @@ class TuneResult:
 
         if name != "history":
             raise ValueError(f"plot: {name!r} is not one of history")
+        if self.level == "detection":
+            return plots.detection_tuning_history(self.history)
         return plots.tuning_history(self.history, self.units)
 
     def fdd_toml(self, fragment_path) -> str:
@@ -102,13 +106,18 @@ class TuneResult:
         written.append(save_figure(self.plot(), out / "history.png"))
         for label, result in self.campaigns.items():
             written.extend(result.save(out / "validation" / label, f"Held-out campaign, FDD {label} tuning"))
+        if self.comparison is not None:
+            written.extend(self.comparison.save(out / "validation" / "compare"))
         return written
 
 
 def tune(cfg, progress: bool = True) -> TuneResult:
     """Tune one detector's evaluator (alpha, beta, gamma), pole and threshold by gradient.
 
-    The plant histories of the training campaign are simulated once; the detector's parameters
+    With ``tune.level = "detection"`` (LOE bank) the detection level is tuned instead
+    (:mod:`mcfdd.workflows.tune_detection`: detection thresholds, excitation floor, evaluator, pole on
+    the detection monitor's margins; ``threshold_scan`` is then the Pareto scan of the thresholds and
+    ``comparison`` the held-out campaigns' paired comparison). The plant histories of the training campaign are simulated once; the detector's parameters
     follow Adam on the smooth log(tau_d / tau_f) through an FDD-only scan; tau is placed in the
     gap; the held-out campaign runs with the FDD before and after, in one compilation.
 
@@ -131,6 +140,10 @@ def tune(cfg, progress: bool = True) -> TuneResult:
     source = cfg if isinstance(cfg, (str, Path)) else None
     cfg = as_config(cfg, "tune")
     with precision(cfg.training.precision):
+        if cfg.tune.level == "detection":
+            from mcfdd.workflows.tune_detection import tune_detection  # it builds on this module's TuneResult
+
+            return tune_detection(cfg, source, progress)
         return _tune(cfg, source, progress)
 
 
