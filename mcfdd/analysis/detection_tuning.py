@@ -108,7 +108,7 @@ def must_detect_mask(columns: dict, design: dict, ranges: dict, runs: str, kinds
     ``columns``: the monitors' hard columns of the training set (host arrays); ``design``: its scenario
     columns; ``ranges``: the campaign's uncertainty ranges (:func:`mcfdd.analysis.metrics.uncertainty_ranges`).
     """
-    must = np.asarray(columns["must_detect"], dtype=bool)
+    must = np.array(columns["must_detect"], dtype=bool)
     peak = np.asarray(columns["peak_load_fraction"], dtype=float)
     if runs == "separable":
         must &= np.asarray(metrics.detectability_columns(design, peak, ranges)["separable"], dtype=bool)
