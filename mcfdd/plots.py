@@ -515,7 +515,7 @@ def detection_tuning_history(history: pd.DataFrame) -> Figure:
     ax1.plot(it, history["tau_d"], lw=0.8, label="tau_d: smallest detection margin (must-detect runs)")
     ax1.axhline(0.0, color="k", lw=0.8)
     ax1.set_ylabel("theta_0 / ||u||")
-    ax1.legend(fontsize=8)
+    ax1.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.0, 0.5))
     ax2.plot(it, history["false_alarms"], "o-", ms=3, label="false alarms (runs)")
     ax2.plot(it, history["missed"], "s-", ms=3, label="must-detect runs missed")
     ax2.set_ylabel("training runs")

@@ -88,8 +88,10 @@ class TuneResult:
     def fdd_toml(self, fragment_path) -> str:
         """The tuned ``[fdd]`` fragment as TOML text (``mcfdd campaign CONFIG --fdd FILE``)."""
         return config.fdd_fragment(self.fdd, (
-            f"FDD settings tuned by `mcfdd tune {self._source or 'CONFIG'}` ({self.detector} detector: evaluator, "
-            f"pole and threshold).\nUse with `mcfdd campaign CONFIG --fdd {fragment_path}`."))
+            f"FDD settings tuned by `mcfdd tune {self._source or 'CONFIG'}` ("
+            + ("LOE detection level: detection thresholds, excitation floor, evaluator and pole"
+               if self.level == "detection" else f"{self.detector} detector: evaluator, pole and threshold")
+            + f").\nUse with `mcfdd campaign CONFIG --fdd {fragment_path}`."))
 
     def save(self, out) -> list[Path]:
         """Write the files of ``mcfdd tune`` into ``out``: ``tuned_fdd.toml``, ``history.parquet``,
