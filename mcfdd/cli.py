@@ -1,16 +1,15 @@
-"""The ``mcfdd`` command (the edge of the package): arguments -> the public API -> printed results."""
+"""The ``mcfdd`` command (the edge of the package): arguments -> the public API -> printed results.
+
+Arguments are parsed before anything heavy is imported: ``mcfdd --help`` and a bad flag load
+neither JAX nor the workflows; each command imports what it runs.
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from pathlib import Path
-
-import mcfdd
-from mcfdd import config, io, report
-from mcfdd.workflows import common
 
 
 def _say(message: str):
@@ -28,6 +27,9 @@ def _written(paths):
 
 
 def cmd_simulate(args) -> int:
+    import mcfdd
+    from mcfdd import io, report
+
     result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
     _written(result.save(io.out_dir("simulate", args.config, args.out)))
     _print(report.simulate_lines(result.summary()))
@@ -37,14 +39,20 @@ def cmd_simulate(args) -> int:
 CAMPAIGN_FLAGS = ("scenarios", "seed", "chunk_size")  # flags that set the campaign.* key of their name
 
 
-def _campaign_config(args) -> config.CampaignConfig:
+def _campaign_config(args):
     """The campaign config with ``--set``, the campaign flags and the ``--fdd`` fragment; bad flags are named."""
+    import mcfdd
+    from mcfdd import config
+
     flags = {key: getattr(args, key, None) for key in CAMPAIGN_FLAGS}
     overrides = config.campaign_overrides(getattr(args, "set", None), flags, getattr(args, "fdd", None))
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
 def cmd_campaign(args) -> int:
+    import mcfdd
+    from mcfdd import io, report
+
     cfg = _campaign_config(args)
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
     try:
@@ -61,6 +69,9 @@ def cmd_campaign(args) -> int:
 
 
 def cmd_fit_lpv(args) -> int:
+    import mcfdd
+    from mcfdd import io, report
+
     result = mcfdd.fit_lpv(args.config)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
     _print(report.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
@@ -68,6 +79,9 @@ def cmd_fit_lpv(args) -> int:
 
 
 def cmd_worst_case(args) -> int:
+    import mcfdd
+    from mcfdd import io, report
+
     result = mcfdd.worst_case(args.config)
     out = io.out_dir("worst-case", args.config, args.out)
     result.save(out, f"Worst case {Path(args.config).stem}")
@@ -77,6 +91,9 @@ def cmd_worst_case(args) -> int:
 
 
 def cmd_tune(args) -> int:
+    import mcfdd
+    from mcfdd import io, report
+
     out = io.out_dir("tune", args.config, args.out, new=True)
     if out.exists() and any(out.iterdir()):
         raise mcfdd.OutputFolderError(f"--out: {out} exists and is not empty; choose another folder")
@@ -88,6 +105,9 @@ def cmd_tune(args) -> int:
 
 
 def cmd_figures(args) -> int:
+    import mcfdd
+    from mcfdd import report
+
     result = mcfdd.paper_figures(args.configs)
     _written(result.save(Path(args.out) if args.out else Path("results") / "figures"))
     _print(report.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
@@ -95,6 +115,10 @@ def cmd_figures(args) -> int:
 
 
 def cmd_schema(args) -> int:
+    import json
+
+    from mcfdd import config
+
     print(json.dumps(config.json_schema(args.kind), indent=1))
     return 0
 
@@ -153,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     _command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
              "campaign", "tune_stall.toml", "the first free results/tune-<config>[-N]")
     p = sub.add_parser("schema", help="print the JSON Schema of a config kind (for editors and validators)")
-    p.add_argument("kind", choices=list(config.KINDS), help="the config kind")
+    p.add_argument("kind", help="the config kind: simulate, campaign, fit-lpv, tune, worst-case or sweep")
     p.set_defaults(func=cmd_schema)
     return parser
 
@@ -165,6 +189,9 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
 def main(argv=None) -> int:
     warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
+    from mcfdd import config
+    from mcfdd.workflows import common
+
     try:
         common.check_folder(getattr(args, "out", None), "--out")
         return args.func(args)

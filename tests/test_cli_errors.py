@@ -294,3 +294,45 @@ def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
     assert report.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
     assert report.decisions_text({}) == "none"
     assert report.value_text(float("nan"), ".2f", " s") == "n/a" and report.value_text(1.234, ".2f", " s") == "1.23 s"
+
+
+STARTUP = """
+import sys
+from mcfdd import cli
+try:
+    code = cli.main(sys.argv[1:])
+except SystemExit as exit:
+    code = exit.code
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("jax", "jaxlib", "numpy", "pandas", "pyarrow", "pydantic",
+                                                            "matplotlib", "distributed")
+               or m.startswith("mcfdd.") and m not in ("mcfdd.cli", "mcfdd.devices"))
+print(code, heavy)
+"""
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["campaign", "--help"], ["schema", "--help"], ["nothing"],
+                                  ["campaign", "x.toml", "--bogus"], ["campaign", "x.toml", "--scenarios", "many"],
+                                  ["campaign", "x.toml", "--workers", "2", "--scheduler", "tls://h:1"]])
+def test_help_and_argument_errors_load_neither_jax_nor_the_workflows(argv):
+    """The command parses its arguments before it imports what it runs (start-up in a fraction of a second)."""
+    proc = subprocess.run([sys.executable, "-c", STARTUP, *argv], capture_output=True, text=True, check=True)
+    code, heavy = proc.stdout.splitlines()[-1].split(" ", 1)
+    assert code == ("0" if "--help" in argv else "2"), proc.stderr
+    assert heavy.strip() == "[]", heavy
+
+
+def test_the_public_names_import_on_first_use():
+    """``import mcfdd`` is light; each public name resolves to the object of the module that holds it."""
+    code = ("import sys, mcfdd; light = 'jax' not in sys.modules; from mcfdd.workflows import campaign; "
+            "print(light, mcfdd.run_campaign is campaign.run_campaign, sorted(set(mcfdd.__all__) - set(dir(mcfdd))))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.split() == ["True", "True", "[]"], proc.stdout + proc.stderr
+
+
+def test_schema_help_names_every_config_kind(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["schema", "--help"])
+    helped = " ".join(capsys.readouterr().out.split())
+    assert all(kind in helped for kind in mcfdd.config.KINDS)
+    line = refused(capsys, "schema", "nothing")
+    assert "kind: 'nothing'" in line
