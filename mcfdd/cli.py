@@ -7,6 +7,7 @@ neither JAX nor the workflows; each command imports what it runs.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -61,8 +62,9 @@ def cmd_campaign(args) -> int:
             result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
                                         executor=executor, compile_cache=args.compile_cache)
     except KeyboardInterrupt:
-        _say(f"\ninterrupted: finished chunks are kept in {out / 'scenarios'}; continue with --resume")
-        return 130
+        kept = "finished chunks are kept in {}; continue with --resume".format(out / "scenarios")
+        _say(f"\nmcfdd: interrupted: {kept if (out / 'campaign.json').is_file() else 'nothing was written'}")
+        return INTERRUPTED
     _print(report.campaign_lines(result.overall(), None if executor is None else result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
@@ -186,21 +188,55 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"mcfdd: warning: {message}\n"
 
 
+INTERRUPTED = 130  # exit status after Ctrl-C (SIGINT), as a shell gives it
+
+
+def _stop_now(code: int):
+    """End this process at once with status ``code``, its output flushed, without tearing down JAX's runtime.
+
+    An interrupt can leave an XLA compilation running on the runtime's thread pool: JAX compiles
+    asynchronously and the interrupt breaks only the wait for it. The interpreter's shutdown then
+    destroys the PjRt client under that compilation (its devices before its compile threads),
+    and the process died by SIGSEGV after its "interrupted" line. What is worth keeping is on
+    disk already (each part is written whole and renamed into place; the kernel releases the
+    folder's lock), so the process ends here instead of shutting the runtime down.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def main(argv=None) -> int:
+    """Run the command of ``argv`` and return its exit status (0, 2 for a user's mistake, 130 interrupted).
+
+    ``argv`` None is this process's command line (the ``mcfdd`` command): an interrupt then ends the
+    process with status 130 right after its one line (:func:`_stop_now`), in whatever phase it comes.
+    """
     warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
-    from mcfdd import config
-    from mcfdd.workflows import common
+    code = _run(args)
+    if code == INTERRUPTED and argv is None:
+        _stop_now(code)
+    return code
 
+
+def _run(args) -> int:
     try:
-        common.check_folder(getattr(args, "out", None), "--out")
-        return args.func(args)
-    except config.ConfigError as err:
-        print(f"mcfdd: configuration error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        from mcfdd import config
+        from mcfdd.workflows import common
+
+        try:
+            common.check_folder(getattr(args, "out", None), "--out")
+            return args.func(args)
+        except config.ConfigError as err:
+            print(f"mcfdd: configuration error: {err}", file=sys.stderr)
+            return 2
+        except OSError as err:
+            print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)
+            return 2
+    except KeyboardInterrupt:
+        _say("\nmcfdd: interrupted")
+        return INTERRUPTED
 
 
 if __name__ == "__main__":
