@@ -35,9 +35,15 @@ def small(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def clean(small):
+def clean_result(small):
+    """The campaign from an uninterrupted in-memory run."""
+    return mcfdd.run_campaign(small, progress=False)
+
+
+@pytest.fixture(scope="module")
+def clean(clean_result):
     """The campaign's table from an uninterrupted in-memory run."""
-    return mcfdd.run_campaign(small, progress=False).scenarios
+    return clean_result.scenarios
 
 
 @pytest.fixture(scope="module")
@@ -371,3 +377,52 @@ def test_ctrl_c_while_starting_exits_with_130(small, tmp_path):
     assert code == 130 and "Traceback" not in err, err
     assert "mcfdd: interrupted" in err
     assert not (tmp_path / "c").exists()
+
+
+def _files(folder) -> dict:
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_save_never_merges_into_another_campaign(small, finished, tmp_path):
+    """Saving a result of another configuration into a campaign's folder is refused and changes nothing."""
+    other = mcfdd.run_campaign(mcfdd.load_config(small, overrides={"campaign.seed": 8}), progress=False)
+    target = tmp_path / "d"
+    shutil.copytree(finished, target)
+    before = _files(target)
+    with pytest.raises(mcfdd.OutputFolderError, match=f"--out: {target} exists and is not empty"):
+        other.save(target)
+    assert _files(target) == before
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / "notes.txt").write_text("mine")
+    with pytest.raises(mcfdd.OutputFolderError, match="not empty"):
+        other.save(tmp_path / "e")
+    assert [p.name for p in (tmp_path / "e").iterdir()] == ["notes.txt"]
+
+
+def test_save_onto_a_file_is_the_one_line_error(clean_result, tmp_path):
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    with pytest.raises(mcfdd.OutputFolderError, match=f"--out: {target} exists and is not a folder"):
+        clean_result.save(target)
+    assert target.read_text() == "keep me"
+
+
+def test_save_completes_its_own_campaign_but_not_other_chunks_of_it(small, clean_result, finished, tmp_path):
+    """The same campaign may be saved into its folder (the same parts, bit for bit); parts of another chunking
+    would make a table with repeated scenarios, so that is refused."""
+    target = tmp_path / "same"
+    shutil.copytree(finished, target)
+    before = _files(target)
+    clean_result.save(target)
+    after = _files(target)
+    parts = {k: v for k, v in before.items() if k.parts[0] == "scenarios"}
+    assert {k: after[k] for k in parts} == parts
+    rechunked = mcfdd.run_campaign(mcfdd.load_config(small, overrides={"campaign.chunk_size": 256}), progress=False)
+    with pytest.raises(mcfdd.OutputFolderError, match="parts of this campaign in other chunks"):
+        rechunked.save(target)
+    busy = io.lock_folder(target)
+    try:
+        with pytest.raises(mcfdd.OutputFolderError, match="in use"):
+            clean_result.save(target)
+    finally:
+        busy.release()

@@ -188,14 +188,24 @@ def _check_out(out: Path, resume: bool):
         raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
 
 
+def _stored_differences(state: Path, cfg: config.CampaignConfig) -> list:
+    """(key, stored value, value of ``cfg``) for each key where the campaign state ``state`` differs from ``cfg``."""
+    try:
+        stored = json.loads(state.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise OutputFolderError(f"--resume: {state} is not a readable campaign state ({err})") from None
+    return config.differences(stored, _resolved(cfg))
+
+
+def _in_use(out: Path) -> OutputFolderError:
+    return OutputFolderError(f"--out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for it "
+                             f"to end or choose another folder")
+
+
 def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
     state = out / CAMPAIGN_STATE
     if resume:
-        try:
-            stored = json.loads(state.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise OutputFolderError(f"resume: {state} is not a readable campaign state ({err})") from None
-        changed = config.differences(stored, _resolved(cfg))
+        changed = _stored_differences(state, cfg)
         if changed:
             raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
                                     + "; ".join(f"{key} was {json.dumps(a)}, now {json.dumps(b)}"
@@ -300,10 +310,45 @@ class CampaignResult:
         ``summary.parquet``, ``confusion.parquet``, ``gaps.parquet``, ``detectability.parquet``, ``summary.md`` (headed
         ``title``, ending with the figures written and those :meth:`left_out`, with the reason) and a PNG per
         :data:`PLOTS` name not left out.
+
+        The command's rule holds: ``out`` is a new or empty folder, or one holding this same campaign
+        (its ``campaign.json`` and no part this result does not write); anything else, a file, or a
+        folder another run is writing raises :class:`OutputFolderError` before anything is written.
         """
+        out = Path(out)
+        self._check_target(out)
+        with _writing(out, "choose a folder you can write to"):
+            lock = io.lock_folder(out)
+        if lock is None:
+            raise _in_use(out)
+        try:
+            with _writing(out, "choose a folder you can write to"):
+                return self._write(out, title)
+        finally:
+            lock.release()
+
+    def _part_names(self) -> set[str]:
+        ids = self.scenarios["scenario_id"].to_numpy()
+        return {_part_name(int(ids[self._parts == part][0])) for part in np.unique(self._parts)}
+
+    def _check_target(self, out: Path):
+        """Refuse a folder :meth:`save` must not write into (see there)."""
+        check_folder(out, "--out")
+        if not io.folder_entries(out):
+            return
+        state = out / CAMPAIGN_STATE
+        if not state.is_file() or _stored_differences(state, self.config):
+            raise OutputFolderError(f"--out: {out} exists and is not empty and holds no campaign of this "
+                                    f"configuration; choose another folder")
+        foreign = sorted(p.name for p in (out / "scenarios").glob("part-*.parquet") if p.name not in self._part_names())
+        if foreign:
+            raise OutputFolderError(f"--out: {out} holds parts of this campaign in other chunks ({foreign[0]}, ...) "
+                                    f"that this result would not replace; choose another folder")
+
+    def _write(self, out: Path, title: str) -> list[Path]:
+        """:meth:`save` into a folder already checked and locked."""
         from mcfdd import report
 
-        out = Path(out)
         left_out = self.left_out()
         no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
         drawn = {name: what + (no_mdr if name.startswith("rates_by_") else "") for name, what in PLOTS.items()
@@ -473,8 +518,7 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     with _writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
-        raise OutputFolderError(f"out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for "
-                                f"it to end or choose another folder")
+        raise _in_use(out)
     try:
         return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
@@ -525,5 +569,5 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile
                             len(todo), worker_table(records, c.n_steps))
     if out is not None:
         with _writing(out, "every scenario part is written; make room and continue with --resume"):
-            result.save(out, title)
+            result._write(out, title)
     return result
