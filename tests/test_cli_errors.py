@@ -426,3 +426,28 @@ def test_save_completes_its_own_campaign_but_not_other_chunks_of_it(small, clean
             clean_result.save(target)
     finally:
         busy.release()
+
+
+def test_a_deleted_campaign_json_is_rebuilt_on_resume(small, clean, finished, tmp_path, capsys):
+    """The parts carry the resolved configuration: ``--resume`` rebuilds campaign.json from it, still refuses a
+    changed configuration naming the key, and completes the table."""
+    out = tmp_path / "c"
+    shutil.copytree(finished, out)
+    original = (out / "campaign.json").read_text()
+    parts = sorted((out / "scenarios").glob("part-*.parquet"))
+    parts[-1].unlink()
+    (out / "campaign.json").unlink()
+    line = refused(capsys, "campaign", small, "--out", out, "--resume", "--seed", 3)
+    assert "campaign.seed was 7, now 3" in line
+    assert (out / "campaign.json").read_text() == original
+    (out / "campaign.json").unlink()
+    assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0
+    assert "rebuilt from the configuration the parts carry" in capsys.readouterr().err
+    assert (out / "campaign.json").read_text() == original
+    pd.testing.assert_frame_equal(table(out), clean, check_exact=True)
+
+
+def test_resume_without_anything_to_rebuild_from_says_how(small, tmp_path, capsys):
+    (tmp_path / "c").mkdir()
+    line = refused(capsys, "campaign", small, "--out", tmp_path / "c", "--resume")
+    assert "campaign.json missing and no scenario part to rebuild it from" in line and "without --resume" in line

@@ -184,8 +184,36 @@ def _writing(out: Path, advice: str):
 def _check_out(out: Path, resume: bool):
     """Refuse an output path that cannot hold this campaign, before anything is made."""
     check_folder(out, "out")
-    if resume and not (out / CAMPAIGN_STATE).is_file():
-        raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
+    if resume and not (out / CAMPAIGN_STATE).is_file() and not _written_tables(out):
+        raise OutputFolderError(f"--resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing and no "
+                                f"scenario part to rebuild it from); run without --resume into a new folder")
+
+
+def _written_tables(out: Path) -> list[Path]:
+    """The Parquet tables of a campaign folder (parts first), each carrying the resolved config in its metadata."""
+    return sorted((out / "scenarios").glob("part-*.parquet")) + sorted(out.glob("*.parquet"))
+
+
+def _rebuilt_state(out: Path) -> str:
+    """The text of a lost ``campaign.json``, from the resolved config the folder's tables carry (``mcfdd.config``).
+
+    Every readable table must carry the same campaign (the chunk size aside); a damaged one is skipped here and
+    dealt with by the resume itself.
+    """
+    states = {}
+    for path in _written_tables(out):
+        try:
+            text = io.read_metadata(path).get("config")
+            state = _state_text(config.parse(config.CampaignConfig, json.loads(text)))
+        except (OSError, ValueError, TypeError, config.ConfigError):
+            continue
+        states.setdefault(state, path)
+    if len(states) != 1:
+        found = ", ".join(p.relative_to(out).as_posix() for p in states.values()) or "none"
+        raise OutputFolderError(f"--resume: {out / CAMPAIGN_STATE} is missing and the folder's tables carry "
+                                f"{len(states)} campaign configurations (first carriers: {found}); keep the parts of "
+                                f"one campaign there, or run into a new folder")
+    return next(iter(states))
 
 
 def _stored_differences(state: Path, cfg: config.CampaignConfig) -> list:
@@ -205,6 +233,10 @@ def _in_use(out: Path) -> OutputFolderError:
 def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
     state = out / CAMPAIGN_STATE
     if resume:
+        if not state.is_file():
+            with _writing(out, "choose a folder you can write to"):
+                io.write_text(state, _rebuilt_state(out))
+            note(f"resume: {CAMPAIGN_STATE} was missing; rebuilt from the configuration the parts carry", True)
         changed = _stored_differences(state, cfg)
         if changed:
             raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
