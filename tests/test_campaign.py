@@ -61,8 +61,8 @@ def scenario_table(out: Path) -> pd.DataFrame:
 
 
 # The shipped false-alarm campaign, shortened: 320 scenarios of 2 s = 64 Sobol samples on each of the
-# 5 manoeuvre families. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
-# 3 chunks (128, 128, 64), 256 runs 2 (256, 64). A low tau_m gives false alarms to count.
+# 5 manoeuvre families. With 2 devices (conftest) chunk_size 128 runs 3 chunks (128, 128, 64), 256 runs
+# 2 (160, 160). A low tau_m gives false alarms to count.
 FAULT_FREE = Path(__file__).resolve().parent.parent / "configs" / "fault_free.toml"
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
@@ -129,8 +129,31 @@ def test_chunk_size_does_not_change_the_table(in_memory):
     chunks = []
     cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING, "campaign.chunk_size": 256})
     other = mcfdd.run_campaign(cfg, progress=False, on_chunk=chunks.append)
-    assert [len(c) for c in chunks] == [256, 64]
+    assert [len(c) for c in chunks] == [160, 160]
     pd.testing.assert_frame_equal(second.scenarios, other.scenarios)
+
+
+def test_chunks_are_evened_out_and_padded_only_to_whole_lanes(tmp_path, capsys):
+    """The shipped fault-free campaign (2,560 scenarios, chunk size 2,048) runs two chunks of 1,280 on four
+    devices, not 4,096 scenarios; ten scenarios run one chunk of 16 on one device; the status line says so."""
+    from mcfdd.workflows import campaign as runner
+
+    assert runner.LANE_BLOCK == 16
+    shipped = mcfdd.load_config(FAULT_FREE)
+    assert (shipped.campaign.scenarios, shipped.campaign.chunk_size) == (2560, 2048)
+    assert runner.chunk_size(2048, 2560, devices=4) == 1280
+    assert runner.chunk_size(2048, 10, devices=4) == 16 and runner.chunk_devices(16, 4) == 1
+    for n in (1, 10, 100, 2560, 16384):
+        for requested in (1, 64, 1000, 2048):
+            for devices in (1, 2, 4, 6):
+                size = runner.chunk_size(requested, n, devices)
+                chunks, fewest = -(-n // size), -(-n // min(requested, n))
+                used = runner.chunk_devices(size, devices)
+                assert size % (used * runner.LANE_BLOCK) == 0 and used == min(devices, size // runner.LANE_BLOCK)
+                assert chunks <= fewest  # no more chunks than the requested size makes
+                assert chunks * size - n < fewest * used * runner.LANE_BLOCK  # less than a lane block per device
+    assert run_cli("campaign", FAULT_FREE, "--out", tmp_path / "ten", *cli_flags({**SHORT, "campaign.scenarios": 10})) == 0
+    assert "10 to run in 1 chunk(s) of 16 (1 device(s) x 16; 6 padding scenarios)" in capsys.readouterr().err
 
 
 def test_interrupted_campaign_resumes_the_missing_scenarios_to_the_same_table(in_memory, tmp_path):
