@@ -339,8 +339,8 @@ def on_devices(fn, *args, batched: tuple[bool, ...], lanes: int | None = None) -
     Each device gets an equal share of the leading axis and runs ``fn`` (a single-device jitted
     function) on it; the other arguments are copied to every device. Dispatch is asynchronous, so
     the devices run at the same time; ``fn`` compiles once for each device it runs on. With
-    ``lanes``, the batch (a multiple of ``lanes``) goes to as many devices as give each a whole
-    number of ``lanes`` scenarios; without, a batch that does not divide among all the devices
+    ``lanes``, the batch goes to as many devices as give each a whole number of ``lanes``
+    scenarios (one device if none does); without, a batch that does not divide among all the devices
     runs on the first one. Returns ``fn``'s outputs as NumPy arrays, the shares concatenated in order.
 
     Every device thus runs the same program as a single device would, whatever the number of
@@ -353,7 +353,7 @@ def on_devices(fn, *args, batched: tuple[bool, ...], lanes: int | None = None) -
     devices = jax.devices()
     n = next(jax.tree.leaves(a)[0].shape[0] for a, b in zip(args, batched) if b)
     if lanes is not None:
-        devices = devices[:max(d for d in range(1, len(devices) + 1) if n % (d * lanes) == 0)]
+        devices = devices[:max((d for d in range(1, len(devices) + 1) if n % (d * lanes) == 0), default=1)]
     elif n % len(devices):
         devices = devices[:1]
     size = n // len(devices)
