@@ -21,7 +21,7 @@ import numpy as np
 from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import bar, note
-from mcfdd.workflows import common
+from mcfdd.workflows import common, resources
 from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, check_folder, dtype_of, load_bank,
                                     precision, save_figure)
 
@@ -108,6 +108,59 @@ def chunk_size(requested: int, n: int, devices: int | None = None) -> int:
     per_chunk = -(-n // -(-n // min(requested, n)))
     used = min(devices, -(-per_chunk // LANE_BLOCK))
     return -(-per_chunk // (used * LANE_BLOCK)) * used * LANE_BLOCK
+
+
+def scenario_bytes(setup: CampaignSetup) -> int:
+    """Bytes of one scenario's inputs, plant parameters and scan carry in the chunk program (traced, not compiled)."""
+    import jax
+
+    from mcfdd.analysis import campaign
+
+    c = setup.config.campaign
+
+    def one():
+        scen, truth, key = jax.tree.map(lambda x: x[0], chunk_inputs(setup, c.seed, np.arange(1), 1))
+        return scen, truth, key, campaign.init_one(setup.model, setup.fdd_params, scen, key, c.dt_s)
+
+    with precision(c.precision):
+        return resources.tree_bytes(jax.eval_shape(one))
+
+
+def _chunk_plan(setup: CampaignSetup, executor, progress: bool) -> int:
+    """The chunk size to run: :func:`chunk_size`, smaller where a chunk's memory would not fit; a note when a chunk
+    may take long. A campaign whose table, or whose smallest chunk, cannot fit is refused naming the key."""
+    import jax
+
+    c, n = setup.config.campaign, setup.n
+    size = chunk_size(c.chunk_size, n)
+    per_scenario = scenario_bytes(setup)
+    available, table = resources.available_bytes(), resources.table_bytes(n)
+    if table + (resources.RUNTIME_BYTES if executor is None else 0) > available:
+        raise config.ConfigError(f"campaign.scenarios: the table of {n} scenarios needs about "
+                                 f"{resources.gib(table)} in this process, more than the "
+                                 f"{resources.gib(available)} available; split the campaign (e.g. by seed)")
+    room, where = available - table, "available here"
+    if _is_dask(executor):
+        from mcfdd.workflows import cluster
+
+        limit = cluster.worker_memory(executor)
+        room, where = (room, where) if limit is None else (limit, "of the smallest worker's memory limit")
+    if resources.chunk_bytes(size, per_scenario) > room:
+        fits = resources.largest_chunk(room, per_scenario)
+        if fits < LANE_BLOCK:
+            raise config.ConfigError(f"campaign.chunk_size: even a chunk of {LANE_BLOCK} scenarios needs about "
+                                     f"{resources.gib(resources.chunk_bytes(LANE_BLOCK, per_scenario))}, more than "
+                                     f"the {resources.gib(room)} {where}")
+        block = LANE_BLOCK * jax.device_count()
+        smaller = chunk_size(fits // block * block or fits // LANE_BLOCK * LANE_BLOCK, n)
+        note(f"campaign: chunks of {size} scenarios would need about "
+             f"{resources.gib(resources.chunk_bytes(size, per_scenario))}; running chunks of {smaller}, which fit in "
+             f"the {resources.gib(room)} {where} (the table does not depend on the chunk size)", True)
+        size = smaller
+    slow = resources.long_chunk_note(size, c.n_steps, resources.cores() if executor is None else 1)
+    if slow:
+        note(slow, True)
+    return size
 
 
 def chunk_devices(size: int, devices: int) -> int:
@@ -440,6 +493,8 @@ def campaign_executor(scheduler: str | None = None, workers: int | None = None, 
         return
     if connect_timeout_s <= 0:
         raise config.ConfigError(f"--connect-timeout: {connect_timeout_s} is not allowed; expected seconds > 0")
+    if workers is not None:
+        resources.check_workers(workers)  # before Dask is even imported
     try:
         from mcfdd.workflows import cluster
     except ImportError:
@@ -466,6 +521,10 @@ def _layout(size: int, executor) -> str:
     return f"{used} device(s) x {size // used}"
 
 
+def _is_dask(executor) -> bool:
+    return type(executor).__module__.startswith("distributed")
+
+
 def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """The chunks run in process (``executor`` None), on a ``concurrent.futures.Executor`` or on a Dask client.
 
@@ -474,7 +533,7 @@ def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """
     if executor is None:
         return ((ids, *chunk_task(cfg, ids, size, plan)) for ids in chunks), lambda: None
-    if type(executor).__module__.startswith("distributed"):
+    if _is_dask(executor):
         from mcfdd.workflows import cluster
 
         return cluster.submit(executor, chunk_task, cfg, chunks, size, plan, cache)
@@ -571,31 +630,32 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     (2, 2)
     """
     cfg = as_config(cfg, "campaign")
-    if out is None:
-        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title, compile_cache)
-    out = Path(out)
-    _check_out(out, resume)
+    if out is not None:
+        out = Path(out)
+        _check_out(out, resume)
     with precision(cfg.campaign.precision):
-        _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
+        setup = _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
+    size = _chunk_plan(setup, executor, progress)  # so does a campaign that cannot fit in memory
+    if out is None:
+        return _run_campaign(setup, None, size, resume, progress, executor, on_chunk, title, compile_cache)
     with _writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
         raise _in_use(out)
     try:
-        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache)
+        return _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
         lock.release()
 
 
-def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
-    """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
+def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
+    """:func:`run_campaign` of a set-up campaign in chunks of ``size``; ``out`` is None or a folder this process has
+    locked."""
     import pandas as pd
 
+    cfg = setup.config
     c = cfg.campaign
     common.compile_cache(compile_cache)
-    with precision(c.precision):
-        setup = _setup_of(cfg)
-        size = chunk_size(c.chunk_size, setup.n)
     n, names = setup.n, setup.names
     if out is not None:
         _prepare_dir(out, cfg, resume)

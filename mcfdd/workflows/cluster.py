@@ -24,6 +24,8 @@ from distributed.diagnostics.plugin import WorkerPlugin
 from distributed.security import Security
 
 from mcfdd import config, devices
+from mcfdd.progress import note
+from mcfdd.workflows import resources
 from mcfdd.workflows.common import compile_cache
 
 SCHEMES = ("tcp", "tls")
@@ -93,14 +95,18 @@ def dask_cluster(scheduler: str | None = None, workers: int | None = None, secur
     if (scheduler is None) == (workers is None):
         raise ClusterError("cluster: give either a scheduler address or a number of local workers")
     if workers is not None:
-        if workers < 1:
-            raise ClusterError(f"workers: {workers} is not allowed; expected a positive integer")
+        resources.check_workers(workers)
         # The workers would inherit this process's device count; each gets its share of the cores instead.
         env = {"XLA_FLAGS": devices.xla_flags(local_devices(workers))}
+        note(f"campaign: starting a local Dask cluster of {workers} worker process(es)", True)
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address=None, silence_logs=logging.ERROR, env=env) as local, \
                 Client(local) as client:
-            yield client
+            try:
+                yield client
+            except KeyboardInterrupt:  # closed at once, without Dask's log of the connections it cuts
+                logging.getLogger("distributed").setLevel(logging.CRITICAL)
+                raise
         return
     address = check_address(scheduler)
     try:
@@ -138,6 +144,12 @@ class WorkerSetup(WorkerPlugin):
         threads = self.host_threads.get(get_address_host(worker.address), worker.state.nthreads)
         devices.use_cores(local_devices(threads))
         compile_cache(self.cache)
+
+
+def worker_memory(client) -> float | None:
+    """The smallest memory limit (bytes) of the client's workers, or None when none is set."""
+    limits = [info.get("memory_limit") or 0 for info in client.scheduler_info(n_workers=-1)["workers"].values()]
+    return float(min(limits)) if limits and min(limits) > 0 else None
 
 
 def _host_threads(client) -> dict:
