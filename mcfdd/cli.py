@@ -199,8 +199,13 @@ def _stop_now(code: int):
     destroys the PjRt client under that compilation (its devices before its compile threads),
     and the process died by SIGSEGV after its "interrupted" line. What is worth keeping is on
     disk already (each part is written whole and renamed into place; the kernel releases the
-    folder's lock), so the process ends here instead of shutting the runtime down.
+    folder's lock), so the process ends here instead of shutting the runtime down; only
+    multiprocessing's exit handler runs first, so the semaphores of a local Dask cluster closed on
+    the way are released (else its resource tracker reports them leaked).
     """
+    from multiprocessing import util
+
+    util._exit_function()  # multiprocessing's own exit handler: a closed local cluster's semaphores released
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
@@ -213,11 +218,26 @@ def main(argv=None) -> int:
     process with status 130 right after its one line (:func:`_stop_now`), in whatever phase it comes.
     """
     warnings.formatwarning = _one_line_warning
+    if argv is None:
+        sys.unraisablehook = _interrupts_redelivered
     args = build_parser().parse_args(argv)
     code = _run(args)
     if code == INTERRUPTED and argv is None:
         _stop_now(code)
     return code
+
+
+def _interrupts_redelivered(unraisable):
+    """An interrupt that lands in a garbage-collection callback (JAX registers one; imports collect often) is
+    ignored by Python, and the command went on; it is delivered to the main thread again, from another thread
+    once this hook has returned (raised here, it would be ignored again)."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        import _thread
+        import threading
+
+        threading.Timer(0.01, _thread.interrupt_main).start()
+    else:
+        sys.__unraisablehook__(unraisable)
 
 
 def _run(args) -> int:

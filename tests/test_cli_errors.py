@@ -344,17 +344,22 @@ def test_schema_help_names_every_config_kind(capsys):
     assert "kind: 'nothing'" in line
 
 
-def _interrupted(cfg, out, after: str, delay_s: float):
-    """``mcfdd campaign`` in its own process, SIGINT ``delay_s`` after the stderr line starting with ``after``
-    (None: after the start)."""
+def interrupted(cfg, out, after: str, delay_s: float, *flags, children: list | None = None):
+    """``mcfdd campaign`` in its own process (``flags``, default ``--compile-cache off``), SIGINT ``delay_s`` after
+    the stderr line starting with ``after`` (None: after the start); ``children`` gets its child processes then."""
+    import psutil
+
     proc = subprocess.Popen([sys.executable, "-m", "mcfdd.cli", "campaign", str(cfg), "--out", str(out),
-                             "--compile-cache", "off"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+                             *(flags or ("--compile-cache", "off"))], stderr=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, text=True)
     seen = []
     for line in proc.stderr if after is not None else ():
         seen.append(line)
         if line.startswith(after):
             break
     time.sleep(delay_s)
+    if children is not None:
+        children.extend(psutil.Process(proc.pid).children(recursive=True))
     proc.send_signal(signal.SIGINT)
     seen.append(proc.stderr.read())
     proc.wait()
@@ -365,18 +370,20 @@ def _interrupted(cfg, out, after: str, delay_s: float):
 def test_ctrl_c_while_compiling_exits_with_130(small, tmp_path, delay_s):
     """SIGINT while XLA compiles the chunk program (compilation cache off: about 15 s here): status 130 and
     the one line, never a crash of the runtime's teardown under a compilation still running."""
-    code, err = _interrupted(small, tmp_path / "c", "campaign: ", delay_s)
+    code, err = interrupted(small, tmp_path / "c", "campaign: ", delay_s)
     assert code == 130, err
     assert "Traceback" not in err
     assert "mcfdd: interrupted" in err, err
 
 
-def test_ctrl_c_while_starting_exits_with_130(small, tmp_path):
-    """SIGINT before the campaign starts (imports, configuration): status 130, one line, no folder made."""
-    code, err = _interrupted(small, tmp_path / "c", None, 1.0)
-    assert code == 130 and "Traceback" not in err, err
+@pytest.mark.parametrize("delay_s", [0.5, 1.0, 1.5, 2.5])
+def test_ctrl_c_while_starting_exits_with_130(small, tmp_path, delay_s):
+    """SIGINT before the campaign starts (imports, configuration): status 130, one line, no folder made. While
+    JAX is imported, the interrupt often lands in its garbage-collection callback, where Python ignores it."""
+    code, err = interrupted(small, tmp_path / "c", None, delay_s)
+    assert code == 130 and "Traceback" not in err and "Exception ignored" not in err, err
     assert "mcfdd: interrupted" in err
-    assert not (tmp_path / "c").exists()
+    assert not (tmp_path / "c").exists() or "continue with --resume" in err
 
 
 def _files(folder) -> dict:

@@ -10,7 +10,7 @@ import sys
 import pandas as pd
 import pytest
 from test_campaign import SMALL
-from test_cli_errors import N, refused
+from test_cli_errors import N, interrupted, refused
 
 import mcfdd
 from mcfdd import cli
@@ -48,6 +48,18 @@ def test_workers_beyond_the_memory_are_refused_naming_the_footprint(small, tmp_p
     with pytest.raises(mcfdd.ConfigError, match="--workers: 1 workers need"):
         with mcfdd.dask_cluster(workers=1):
             pass
+
+
+def test_ctrl_c_while_the_local_cluster_starts_ends_it_and_exits_with_130(small, tmp_path):
+    import psutil
+
+    children = []
+    code, err = interrupted(small, tmp_path / "c", "campaign: starting a local Dask cluster", 1.0, "--workers", "2",
+                            children=children)
+    assert code == 130 and "Traceback" not in err, err
+    assert err.splitlines()[-1].startswith("mcfdd: interrupted"), err
+    gone, alive = psutil.wait_procs(children, timeout=60)
+    assert not alive, alive
 
 
 def test_a_chunk_too_large_for_the_memory_is_split_with_the_same_table(small, clean, tmp_path, capsys, monkeypatch):

@@ -104,8 +104,9 @@ def dask_cluster(scheduler: str | None = None, workers: int | None = None, secur
                 Client(local) as client:
             try:
                 yield client
-            except KeyboardInterrupt:  # closed at once, without Dask's log of the connections it cuts
-                logging.getLogger("distributed").setLevel(logging.CRITICAL)
+            except KeyboardInterrupt:  # closed at once, without the logs of the connections and messages it cuts
+                for name in ("distributed", "asyncio"):
+                    logging.getLogger(name).setLevel(logging.CRITICAL)
                 raise
         return
     address = check_address(scheduler)
