@@ -192,7 +192,7 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
     out = cli_run
     for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "detectability.parquet",
                  "scenarios/part-00000000.parquet"):
-        meta = cli.io.read_metadata(out / name)
+        meta = io.read_metadata(out / name)
         assert json.loads(meta["config"])["campaign"]["seed"] == 21
         assert meta["seed"] == "21" and meta["version"] and meta["git_revision"]
     summ = pd.read_parquet(out / "summary.parquet")

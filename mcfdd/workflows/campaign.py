@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
-import json
 import os
 import socket
 import time
@@ -21,11 +20,10 @@ import numpy as np
 from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import bar, note
-from mcfdd.workflows import common, resources
+from mcfdd.workflows import common, folder, resources
 from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, check_folder, dtype_of, load_bank,
                                     precision, save_figure)
 
-CAMPAIGN_STATE = "campaign.json"
 # Each device's share of a chunk is a whole number of LANE_BLOCK scenarios, so a scenario's bits do
 # not depend on the chunk size or the device count. Measured on one device (float32 and float64):
 # shares of 2 to 250 scenarios give every scenario the bits of a share of 64; a share of 1 does not
@@ -234,98 +232,6 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
     return table
 
 
-def _resolved(cfg: config.CampaignConfig) -> dict:
-    """Resolved config without the chunk size, which does not change results."""
-    data = config.to_dict(cfg)
-    data["campaign"].pop("chunk_size")
-    return json.loads(json.dumps(data, default=str))
-
-
-def _state_text(cfg: config.CampaignConfig) -> str:
-    return json.dumps(_resolved(cfg), indent=1, sort_keys=True)
-
-
-@contextlib.contextmanager
-def _writing(out: Path, advice: str):
-    """Turns a failed write under ``out`` (no space, read-only, ...) into one line naming the file."""
-    try:
-        yield
-    except OSError as err:
-        raise OutputFolderError(f"out: cannot write {err.filename or out}: {err.strerror or err}; {advice}") from None
-
-
-def _check_out(out: Path, resume: bool):
-    """Refuse an output path that cannot hold this campaign, before anything is made."""
-    check_folder(out, "out")
-    if resume and not (out / CAMPAIGN_STATE).is_file() and not _written_tables(out):
-        raise OutputFolderError(f"--resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing and no "
-                                f"scenario part to rebuild it from); run without --resume into a new folder")
-
-
-def _written_tables(out: Path) -> list[Path]:
-    """The Parquet tables of a campaign folder (parts first), each carrying the resolved config in its metadata."""
-    return sorted((out / "scenarios").glob("part-*.parquet")) + sorted(out.glob("*.parquet"))
-
-
-def _rebuilt_state(out: Path) -> str:
-    """The text of a lost ``campaign.json``, from the resolved config the folder's tables carry (``mcfdd.config``).
-
-    Every readable table must carry the same campaign (the chunk size aside); a damaged one is skipped here and
-    dealt with by the resume itself.
-    """
-    states = {}
-    for path in _written_tables(out):
-        try:
-            text = io.read_metadata(path).get("config")
-            state = _state_text(config.parse(config.CampaignConfig, json.loads(text)))
-        except (OSError, ValueError, TypeError, config.ConfigError):
-            continue
-        states.setdefault(state, path)
-    if len(states) != 1:
-        found = ", ".join(p.relative_to(out).as_posix() for p in states.values()) or "none"
-        raise OutputFolderError(f"--resume: {out / CAMPAIGN_STATE} is missing and the folder's tables carry "
-                                f"{len(states)} campaign configurations (first carriers: {found}); keep the parts of "
-                                f"one campaign there, or run into a new folder")
-    return next(iter(states))
-
-
-def _stored_differences(state: Path, cfg: config.CampaignConfig) -> list:
-    """(key, stored value, value of ``cfg``) for each key where the campaign state ``state`` differs from ``cfg``."""
-    try:
-        stored = json.loads(state.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise OutputFolderError(f"--resume: {state} is not a readable campaign state ({err})") from None
-    return config.differences(stored, _resolved(cfg))
-
-
-def _in_use(out: Path) -> OutputFolderError:
-    return OutputFolderError(f"--out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for it "
-                             f"to end or choose another folder")
-
-
-def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
-    state = out / CAMPAIGN_STATE
-    if resume:
-        if not state.is_file():
-            with _writing(out, "choose a folder you can write to"):
-                io.write_text(state, _rebuilt_state(out))
-            note(f"resume: {CAMPAIGN_STATE} was missing; rebuilt from the configuration the parts carry", True)
-        changed = _stored_differences(state, cfg)
-        if changed:
-            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
-                                    + "; ".join(f"{key} was {json.dumps(a)}, now {json.dumps(b)}"
-                                                for key, a, b in changed))
-        return
-    if io.folder_entries(out):
-        raise OutputFolderError(f"out: {out} exists and is not empty; resume it or choose another folder")
-    with _writing(out, "choose a folder you can write to"):
-        io.write_text(state, _state_text(cfg))
-
-
-def _part_name(first_id: int) -> str:
-    return f"part-{first_id:08d}.parquet"
-
-
 class CampaignResult:
     """A finished campaign: its tables, provenance, figures and files.
 
@@ -422,27 +328,27 @@ class CampaignResult:
         """
         out = Path(out)
         self._check_target(out)
-        with _writing(out, "choose a folder you can write to"):
+        with folder.writing(out, "choose a folder you can write to"):
             lock = io.lock_folder(out)
         if lock is None:
-            raise _in_use(out)
+            raise folder.in_use(out)
         try:
-            with _writing(out, "choose a folder you can write to"):
+            with folder.writing(out, "choose a folder you can write to"):
                 return self._write(out, title)
         finally:
             lock.release()
 
     def _part_names(self) -> set[str]:
         ids = self.scenarios["scenario_id"].to_numpy()
-        return {_part_name(int(ids[self._parts == part][0])) for part in np.unique(self._parts)}
+        return {folder.part_name(int(ids[self._parts == part][0])) for part in np.unique(self._parts)}
 
     def _check_target(self, out: Path):
         """Refuse a folder :meth:`save` must not write into (see there)."""
         check_folder(out, "--out")
         if not io.folder_entries(out):
             return
-        state = out / CAMPAIGN_STATE
-        if not state.is_file() or _stored_differences(state, self.config):
+        state = out / folder.CAMPAIGN_STATE
+        if not state.is_file() or folder.stored_differences(state, self.config):
             raise OutputFolderError(f"--out: {out} exists and is not empty and holds no campaign of this "
                                     f"configuration; choose another folder")
         foreign = sorted(p.name for p in (out / "scenarios").glob("part-*.parquet") if p.name not in self._part_names())
@@ -458,12 +364,12 @@ class CampaignResult:
         no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
         drawn = {name: what + (no_mdr if name.startswith("rates_by_") else "") for name, what in PLOTS.items()
                  if name not in left_out}
-        written = [io.write_text(out / CAMPAIGN_STATE, _state_text(self.config))]
+        written = [io.write_text(out / folder.CAMPAIGN_STATE, folder.state_text(self.config))]
         ids = self.scenarios["scenario_id"].to_numpy()
         for part in np.unique(self._parts):
             rows = self._parts == part
             written.append(io.write_table(self.scenarios[rows].reset_index(drop=True),
-                                          out / "scenarios" / _part_name(int(ids[rows][0])), self.meta))
+                                          out / "scenarios" / folder.part_name(int(ids[rows][0])), self.meta))
         written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
         written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
         written.append(io.write_table(self.gaps, out / "gaps.parquet", self.meta))
@@ -553,51 +459,6 @@ def worker_table(records, n_steps: int):
     return table
 
 
-def _part_damage(part: Path, setup: CampaignSetup, done: np.ndarray):
-    """(table, None) for a sound part of this campaign, (None, what is wrong) for a damaged one.
-
-    Sound: readable in full with its page checksums, named after its first scenario id, holding
-    ids of this campaign that no other part holds, with exactly the design values of those ids.
-    """
-    try:
-        df = io.read_checked_table(part)
-    except ValueError as err:
-        return None, f"unreadable: {err}"
-    if "scenario_id" not in df.columns:
-        return None, "column scenario_id missing"
-    ids = df["scenario_id"].to_numpy()
-    if not len(ids) or ids.dtype.kind not in "iu" or ids.min() < 0 or ids.max() >= setup.n:
-        return None, f"scenario ids outside 0..{setup.n - 1}"
-    if part.name != _part_name(int(ids[0])) or len(np.unique(ids)) != len(ids) or done[ids].any():
-        return None, "scenario ids repeated or not those of its name"
-    for column, values in build.design_chunk(setup.config, setup.plan, ids).items():
-        if column not in df.columns:
-            return None, f"column {column} missing"
-        if not np.array_equal(df[column].to_numpy(), np.asarray(values)):
-            return None, f"column {column} differs from the campaign's design"
-    return df, None
-
-
-def _read_parts(parts_dir: Path, setup: CampaignSetup):
-    """Sound tables already written under ``parts_dir`` with their part numbers, and which ids they hold.
-
-    A damaged part (:func:`_part_damage`) is renamed ``*.damaged`` and named on stderr; its
-    scenarios are run again.
-    """
-    frames, labels, done = [], [], np.zeros(setup.n, dtype=bool)
-    for part in sorted(parts_dir.glob("part-*.parquet")):
-        df, damage = _part_damage(part, setup, done)
-        if damage is not None:
-            aside = part.with_name(part.name + ".damaged")
-            part.replace(aside)
-            note(f"resume: {part} is damaged ({damage}); moved to {aside.name}, its scenarios are run again", True)
-            continue
-        frames.append(df)
-        labels.append(np.full(len(df), int(part.stem.split("-")[1])))
-        done[df["scenario_id"].to_numpy()] = True
-    return frames, labels, done
-
-
 def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, executor=None, on_chunk=None,
                  title: str = "Campaign", compile_cache=None) -> CampaignResult:
     """Simulate and score every scenario of a campaign.
@@ -632,16 +493,16 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     cfg = as_config(cfg, "campaign")
     if out is not None:
         out = Path(out)
-        _check_out(out, resume)
+        folder.check_out(out, resume)
     with precision(cfg.campaign.precision):
         setup = _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
     size = _chunk_plan(setup, executor, progress)  # so does a campaign that cannot fit in memory
     if out is None:
         return _run_campaign(setup, None, size, resume, progress, executor, on_chunk, title, compile_cache)
-    with _writing(out, "choose a folder you can write to"):
+    with folder.writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
-        raise _in_use(out)
+        raise folder.in_use(out)
     try:
         return _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
@@ -658,8 +519,8 @@ def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title,
     common.compile_cache(compile_cache)
     n, names = setup.n, setup.names
     if out is not None:
-        _prepare_dir(out, cfg, resume)
-    frames, labels, done = _read_parts(out / "scenarios", setup) if out is not None and resume else (
+        folder.prepare_dir(out, cfg, resume)
+    frames, labels, done = folder.read_parts(out / "scenarios", setup) if out is not None and resume else (
         [], [], np.zeros(n, dtype=bool))
     todo = np.flatnonzero(~done)
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
@@ -675,8 +536,8 @@ def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title,
             for ids, table, worker, seconds in finished:
                 frame = pd.DataFrame(table)
                 if out is not None:
-                    with _writing(out, "the parts written so far are kept; make room and continue with --resume"):
-                        io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
+                    with folder.writing(out, "the parts written so far are kept; make room and continue with --resume"):
+                        io.write_table(frame, out / "scenarios" / folder.part_name(int(ids[0])), meta)
                 frames.append(frame)
                 labels.append(np.full(len(ids), int(ids[0])))
                 records.append((worker, len(ids), seconds))
@@ -691,6 +552,6 @@ def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title,
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
                             len(todo), worker_table(records, c.n_steps))
     if out is not None:
-        with _writing(out, "every scenario part is written; make room and continue with --resume"):
+        with folder.writing(out, "every scenario part is written; make room and continue with --resume"):
             result._write(out, title)
     return result
