@@ -229,19 +229,53 @@ def main(argv=None) -> int:
 
 def _interrupts_redelivered(unraisable):
     """An interrupt that lands in a garbage-collection callback (JAX registers one; imports collect often) is
-    ignored by Python, and the command went on; it is delivered to the main thread again, from another thread
-    once this hook has returned (raised here, it would be ignored again)."""
-    if issubclass(unraisable.exc_type, KeyboardInterrupt):
-        import _thread
-        import threading
+    ignored by Python, and the command went on; it is raised again 50 ms later (a SIGALRM), once this hook has
+    returned, and again until it lands in the command's own code."""
+    import signal
 
-        threading.Timer(0.01, _thread.interrupt_main).start()
+    if issubclass(unraisable.exc_type, KeyboardInterrupt) and hasattr(signal, "setitimer"):  # not on Windows
+        signal.signal(signal.SIGALRM, _interrupt_again)
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
     else:
         sys.__unraisablehook__(unraisable)
 
 
+def _interrupt_again(signum, frame):
+    if frame is not None and frame.f_code is _interrupts_redelivered.__code__:
+        import signal
+
+        signal.setitimer(signal.ITIMER_REAL, 0.05)  # still in the hook, where an exception would be ignored
+        return
+    raise KeyboardInterrupt
+
+
+def _start_runtime():
+    """Import JAX and the workflows' common edge (NumPy, pandas, Arrow) and start JAX's devices, with Ctrl-C held
+    until they are done (a few seconds), then honoured: an interrupt inside the import of jaxlib's native module
+    crashed the process (SIGSEGV in nanobind's teardown of the half-made module)."""
+    import signal
+    import threading
+
+    held = []
+    main_thread = threading.current_thread() is threading.main_thread()  # signal handlers are set there only
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if main_thread else None
+    try:
+        import jax
+
+        from mcfdd.workflows import common  # noqa: F401
+
+        jax.devices()
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
+    if held:
+        raise KeyboardInterrupt
+
+
 def _run(args) -> int:
     try:
+        if args.func is not cmd_schema:
+            _start_runtime()
         from mcfdd import config
         from mcfdd.workflows import common
 
@@ -249,7 +283,8 @@ def _run(args) -> int:
             common.check_folder(getattr(args, "out", None), "--out")
             return args.func(args)
         except config.ConfigError as err:
-            print(f"mcfdd: configuration error: {err}", file=sys.stderr)
+            kind = "" if isinstance(err, common.ResourceError) else "configuration error: "
+            print(f"mcfdd: {kind}{err}", file=sys.stderr)
             return 2
         except OSError as err:
             print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)

@@ -37,6 +37,7 @@ from mcfdd.fdd import lpv
 from mcfdd.plant import atmosphere, manoeuvres, turbulence
 
 FAULT_KINDS = ("none", "leakage", "surface_damage", "disconnection", "jamming")
+IDLE_MANOEUVRES = ("quiet", "level_flight")  # no manoeuvre starts: their t_start_s is not used
 PARAMETRIC = ("leakage", "surface_damage", "disconnection")
 DESIGNS = ("grid", "random", "lhs", "sobol")
 PRECISIONS = ("float32", "float64")
@@ -461,9 +462,16 @@ class SimulateConfig(Section):
         if not self.runs:
             raise Invalid("runs", "at least one [[runs]] table is required")
         _check_unique([r.name for r in self.runs], "runs")
+        end = self.simulation.duration_s
         for i, run in enumerate(self.runs):
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
             self.plant.check_manoeuvres([run.manoeuvre.kind], f"runs[{i}].manoeuvre.kind")
+            for starts, key, what in ((run.manoeuvre.kind not in IDLE_MANOEUVRES, "manoeuvre.t_start_s", "manoeuvre"),
+                                      (run.fault.kind != "none", "fault.onset_s", "fault onset")):
+                at = run.manoeuvre.t_start_s if key.startswith("manoeuvre") else run.fault.onset_s
+                if starts and at >= end:
+                    raise Invalid(f"runs[{i}].{key}", f"the {what} at {at} s is at or after the end of the run "
+                                                      f"({end} s, simulation.duration_s)")
 
 
 def _check_unique(names, key):
@@ -739,7 +747,7 @@ class CampaignConfig(Section):
             raise Invalid("evaluation.settle_s", f"{self.evaluation.settle_s} s is not below the runs' duration "
                                                  f"({end} s); no decision would be scored")
         windows = (("fault_kind", ("none",), "fault_onset_s", "fault onsets"),
-                   ("manoeuvre_kind", ("quiet", "level_flight"), "t_start_s", "manoeuvres"))
+                   ("manoeuvre_kind", IDLE_MANOEUVRES, "t_start_s", "manoeuvres"))
         for kind, idle, column, what in windows:
             axis = self.space.axis(kind)
             if set(axis.grid_values() if axis else (_default(kind),)) <= set(idle):
@@ -998,8 +1006,11 @@ def to_json(obj) -> str:
 
 def load_toml(path) -> dict:
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"{path}: no such configuration file")
+    if not path.is_file():
+        raise ConfigError(f"{path}: {'a folder' if path.is_dir() else 'not a regular file'}, not a configuration "
+                          f"file; give the path of a TOML file")
     try:
         with path.open("rb") as fh:
             return tomllib.load(fh)
@@ -1007,6 +1018,10 @@ def load_toml(path) -> dict:
         raise ConfigError(f"{path}: not a text file (not valid UTF-8)") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a configuration") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read it: {err.strerror or err}") from None
 
 
 def _in_file(path, fn, *args):
@@ -1179,6 +1194,8 @@ def set_overrides(pairs) -> dict:
             overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
         except tomllib.TOMLDecodeError:
             overrides[key.strip()] = text
+        except RecursionError:
+            raise ConfigError(f"--set: the value of {key.strip()} is nested too deeply") from None
     return overrides
 
 

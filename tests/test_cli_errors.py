@@ -151,9 +151,32 @@ def _read_only(tmp_path, small, monkeypatch):
     return [small], [str(tmp_path / "out"), os.strerror(errno.EROFS)]
 
 
+def _nested(tmp_path, small):
+    path = tmp_path / "nested.toml"
+    path.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    return [path], [str(path), "nested too deeply"]
+
+
+def _folder_as_config(tmp_path, small):
+    return [tmp_path], [str(tmp_path), "a folder, not a configuration file"]
+
+
+def _device_as_config(tmp_path, small):
+    return [os.devnull], [os.devnull, "not a regular file, not a configuration file"]
+
+
+def _nested_set(tmp_path, small):
+    return [small, "--set", "fdd.loe.tau=" + "[" * 5000 + "]" * 5000], ["--set", "nested too deeply"]
+
+
+def _compile_cache(tmp_path, small):
+    return [small, "--compile-cache", os.devnull + "/cache"], ["--compile-cache", os.devnull]
+
+
 CASES = {f.__name__[1:]: f for f in (_binary, _latin1, _missing, _out_onto_file, _seed, _scenarios, _chunk_size,
                                      _not_a_multiple, _settle, _manoeuvre_window, _onset, _empty_space,
-                                     _bad_fdd_file, _tls_without_scheduler, _tls_with_local_workers)}
+                                     _bad_fdd_file, _tls_without_scheduler, _tls_with_local_workers, _nested,
+                                     _folder_as_config, _device_as_config, _nested_set, _compile_cache)}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -168,9 +191,40 @@ def test_bad_input_is_refused_naming_it_before_any_folder_is_made(case, small, t
     assert not out.exists()
 
 
+def test_every_refusal_of_an_option_names_it_as_the_command_does(small, finished, tmp_path, capsys):
+    """One convention: an option is named as its flag (--out, --resume, --workers, --compile-cache, --scheduler),
+    whether the command or the library refused it; folder and machine limits are not called configuration errors."""
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    cases = [(["--out", target], "mcfdd: --out: "), (["--out", finished], "mcfdd: --out: "),
+             (["--out", tmp_path / "none", "--resume"], "mcfdd: --resume: "),
+             (["--out", tmp_path / "w", "--workers", 100000], "mcfdd: --workers: "),
+             (["--out", tmp_path / "c", "--compile-cache", target], "mcfdd: configuration error: --compile-cache: "),
+             (["--out", tmp_path / "s", "--scheduler", "tcp://127.0.0.1"], "mcfdd: --scheduler: ")]
+    for args, start in cases:
+        line = refused(capsys, "campaign", small, *args)
+        assert line.startswith(start), line
+    for call, start in ((lambda: mcfdd.run_campaign(small, out=target), "--out: "),
+                        (lambda: mcfdd.run_campaign(small, out=tmp_path / "none", resume=True), "--resume: ")):
+        with pytest.raises(mcfdd.OutputFolderError) as err:
+            call()
+        assert str(err.value).startswith(start)
+
+
+def test_simulate_refuses_a_manoeuvre_or_fault_after_the_end_of_the_run(tmp_path, capsys):
+    path = tmp_path / "late.toml"
+    for run, key in (('manoeuvre = { kind = "doublet", t_start_s = 25.0 }', "runs[1].manoeuvre.t_start_s"),
+                     ('fault = { kind = "leakage", size = 0.2, onset_s = 20.0 }', "runs[1].fault.onset_s")):
+        path.write_text('[simulation]\nduration_s = 20.0\n[[runs]]\nname = "ok"\n'
+                        f'[[runs]]\nname = "late"\n{run}\n')
+        line = refused(capsys, "simulate", path, "--out", tmp_path / "s")
+        assert f"{key}: the" in line and "at or after the end of the run (20.0 s, simulation.duration_s)" in line
+    assert not (tmp_path / "s").exists()
+
+
 def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
     args, named = _read_only(tmp_path, small, monkeypatch)
-    line = refused(capsys, "campaign", *args, "--out", tmp_path / "out")
+    line = refused(capsys, "campaign", *args, "--out", tmp_path / "out", "--compile-cache", "off")
     for text in named:
         assert text in line
 
@@ -203,6 +257,7 @@ def test_full_disk_mid_run_is_named_and_resume_completes_the_table(small, clean,
     monkeypatch.setattr(io, "write_table", disk_full_at_second_part)
     line = refused(capsys, "campaign", small, "--out", out)
     assert str(calls[1]) in line and os.strerror(errno.ENOSPC) in line and "--resume" in line
+    assert line.startswith("mcfdd: --out: cannot write")  # a full disk is not a configuration error
     monkeypatch.setattr(io, "write_table", write_table)
     assert [p.name for p in (out / "scenarios").glob("*.parquet")] == [calls[0].name]
     assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0

@@ -115,6 +115,37 @@ def test_confusion_labels_fit_a_one_row_matrix():
     _inside(plots.confusion_matrix(conf))
 
 
+def test_confusion_colours_by_share_of_the_identified_runs_not_by_the_no_decision_count():
+    """'no decision' (in grey, count only) no longer sets the colour scale: each decided cell is its share of the
+    row's identified runs, so three confusions among 1,000 undecided runs still show."""
+    conf = pd.DataFrame([[9, 3, 1000], [0, 0, 50]], index=["surface-loss-100", "pressure-loss-27"],
+                        columns=["surface-loss-100", "pressure-loss-27", "no decision"])
+    fig = plots.confusion_matrix(conf)
+    colours = fig.axes[0].images[0].get_array()
+    np.testing.assert_allclose(colours[0, :2], [0.75, 0.25])
+    assert colours.mask[:, 2].all() and colours.mask[1].all()  # no decision; a row with nothing identified
+    assert [t.get_text() for t in fig.axes[0].texts] == ["9", "3", "1000", "0", "0", "50"]
+    _inside(fig)
+
+
+def test_a_fault_free_campaign_shows_its_false_identifications_per_model_or_no_confusion_at_all():
+    """The confusion of a fault-free campaign lists every fault model as a column (its false identifications),
+    and is left out, with the reason, when nothing was identified."""
+    import mcfdd
+
+    from test_campaign import ALARMING, FAULT_FREE, SHORT
+
+    short = {**SHORT, "campaign.scenarios": 40}
+    quiet = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides=short), progress=False)
+    assert "no identification" in quiet.left_out()["confusion"]
+    alarming = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={**short, **ALARMING}), progress=False)
+    assert (alarming.scenarios["identified_model"] >= 0).any() and "confusion" not in alarming.left_out()
+    fig = alarming.plot("confusion")
+    labels = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert labels == [*alarming.models[1:], "no decision"]
+    assert [t.get_text() for t in fig.axes[0].get_yticklabels()] == ["fault-free"]
+
+
 def test_stall_latency_is_the_cdf_of_each_runs_worst_latency():
     """Signal rules: of the three runs with stall loads two identified all events (0.1 s, 0.7 s), one
     did not; model rules: 0.2 s and 0.4 s, and a run that identified one of its two events."""

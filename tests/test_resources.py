@@ -35,7 +35,7 @@ def test_workers_beyond_the_cores_are_refused_before_a_cluster_starts(small, tmp
     code = cli.main(["campaign", str(small), "--workers", str(cores + 1), "--out", str(tmp_path / "a")])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1, err
-    assert f"mcfdd: configuration error: --workers: {cores + 1} is more than this machine's {cores} cores; at most " \
+    assert f"mcfdd: --workers: {cores + 1} is more than this machine's {cores} cores; at most " \
            f"{cores}" in err
     assert not (tmp_path / "a").exists()
 

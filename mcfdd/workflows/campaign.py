@@ -134,7 +134,7 @@ def _chunk_plan(setup: CampaignSetup, executor, progress: bool) -> int:
     per_scenario = scenario_bytes(setup)
     available, table = resources.available_bytes(), resources.table_bytes(n)
     if table + (resources.RUNTIME_BYTES if executor is None else 0) > available:
-        raise config.ConfigError(f"campaign.scenarios: the table of {n} scenarios needs about "
+        raise common.ResourceError(f"campaign.scenarios: the table of {n} scenarios needs about "
                                  f"{resources.gib(table)} in this process, more than the "
                                  f"{resources.gib(available)} available; split the campaign (e.g. by seed)")
     room, where = available - table, "available here"
@@ -146,7 +146,7 @@ def _chunk_plan(setup: CampaignSetup, executor, progress: bool) -> int:
     if resources.chunk_bytes(size, per_scenario) > room:
         fits = resources.largest_chunk(room, per_scenario)
         if fits < LANE_BLOCK:
-            raise config.ConfigError(f"campaign.chunk_size: even a chunk of {LANE_BLOCK} scenarios needs about "
+            raise common.ResourceError(f"campaign.chunk_size: even a chunk of {LANE_BLOCK} scenarios needs about "
                                      f"{resources.gib(resources.chunk_bytes(LANE_BLOCK, per_scenario))}, more than "
                                      f"the {resources.gib(room)} {where}")
         block = LANE_BLOCK * jax.device_count()
@@ -283,6 +283,9 @@ class CampaignResult:
             why["detectability"] = "no parametric faults in this campaign"
         if o["stall_events"] == 0:
             why["stall_latency"] = "no relevant stall loads in this campaign"
+        if o["faulty_runs"] == 0 and o["jammed_runs"] == 0 and o["stall_events"] == 0 and \
+                not (df["identified_model"] >= 0).any():
+            why["confusion"] = "no faulty or jammed run, no stall load and no identification in this campaign"
         return why
 
     def plot(self, name: str):
@@ -309,7 +312,9 @@ class CampaignResult:
             o = self.overall()
             stall = (report.stall_confusion(self.scenarios, self.config.fdd.stall.identification)
                      if o["stall_events"] > 0 or o["jammed_runs"] > 0 else None)
-            return plots.confusion_matrix(self.confusion, stall)
+            decidable = [m for m in self.models if m != self.models[0] or m in self.confusion.columns]
+            return plots.confusion_matrix(self.confusion.reindex(columns=[*decidable, "no decision"], fill_value=0),
+                                          stall)
         if name == "detectability":
             return plots.detectability(self.detectability)
         return plots.stall_latency(self.scenarios, self.config.evaluation.stall_window_s)
@@ -497,8 +502,10 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     with precision(cfg.campaign.precision):
         setup = _setup_of(cfg)  # a configuration error (a bad bank) stops the run before any folder is made
     size = _chunk_plan(setup, executor, progress)  # so does a campaign that cannot fit in memory
+    common.compile_cache(compile_cache)  # and an unusable cache folder
     if out is None:
         return _run_campaign(setup, None, size, resume, progress, executor, on_chunk, title, compile_cache)
+    made = not out.exists()
     with folder.writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
@@ -507,6 +514,8 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
         return _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
         lock.release()
+        if made:
+            folder.remove_if_unused(out)
 
 
 def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
@@ -516,7 +525,6 @@ def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title,
 
     cfg = setup.config
     c = cfg.campaign
-    common.compile_cache(compile_cache)
     n, names = setup.n, setup.names
     if out is not None:
         folder.prepare_dir(out, cfg, resume)

@@ -38,12 +38,12 @@ def writing(out: Path, advice: str):
     try:
         yield
     except OSError as err:
-        raise OutputFolderError(f"out: cannot write {err.filename or out}: {err.strerror or err}; {advice}") from None
+        raise OutputFolderError(f"--out: cannot write {err.filename or out}: {err.strerror or err}; {advice}") from None
 
 
 def check_out(out: Path, resume: bool):
     """Refuse an output path that cannot hold this campaign, before anything is made."""
-    check_folder(out, "out")
+    check_folder(out, "--out")
     if resume and not (out / CAMPAIGN_STATE).is_file() and not written_tables(out):
         raise OutputFolderError(f"--resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing and no "
                                 f"scenario part to rebuild it from); run without --resume into a new folder")
@@ -85,6 +85,13 @@ def stored_differences(state: Path, cfg: config.CampaignConfig) -> list:
     return config.differences(stored, resolved(cfg))
 
 
+def remove_if_unused(out: Path):
+    """Remove a folder this run made and left holding nothing but its lock file (the run failed before it began)."""
+    if out.is_dir() and not io.folder_entries(out):
+        (out / io.LOCK_NAME).unlink(missing_ok=True)
+        out.rmdir()
+
+
 def in_use(out: Path) -> OutputFolderError:
     return OutputFolderError(f"--out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for it "
                              f"to end or choose another folder")
@@ -96,15 +103,15 @@ def prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
         if not state.is_file():
             with writing(out, "choose a folder you can write to"):
                 io.write_text(state, rebuilt_state(out))
-            note(f"resume: {CAMPAIGN_STATE} was missing; rebuilt from the configuration the parts carry", True)
+            note(f"--resume: {CAMPAIGN_STATE} was missing; rebuilt from the configuration the parts carry", True)
         changed = stored_differences(state, cfg)
         if changed:
-            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
+            raise OutputFolderError(f"--resume: the configuration differs from the one {out} was started with: "
                                     + "; ".join(f"{key} was {json.dumps(a)}, now {json.dumps(b)}"
                                                 for key, a, b in changed))
         return
     if io.folder_entries(out):
-        raise OutputFolderError(f"out: {out} exists and is not empty; resume it or choose another folder")
+        raise OutputFolderError(f"--out: {out} exists and is not empty; resume it or choose another folder")
     with writing(out, "choose a folder you can write to"):
         io.write_text(state, state_text(cfg))
 
@@ -150,7 +157,7 @@ def read_parts(parts_dir: Path, setup):
         if damage is not None:
             aside = part.with_name(part.name + ".damaged")
             part.replace(aside)
-            note(f"resume: {part} is damaged ({damage}); moved to {aside.name}, its scenarios are run again", True)
+            note(f"--resume: {part} is damaged ({damage}); moved to {aside.name}, its scenarios are run again", True)
             continue
         frames.append(df)
         labels.append(np.full(len(df), int(part.stem.split("-")[1])))

@@ -28,6 +28,7 @@ import os
 import numpy as np
 
 from mcfdd import config
+from mcfdd.workflows.common import ResourceError
 
 GIB = 2.0**30
 RUNTIME_BYTES = 1.0 * GIB  # one process with JAX, mcfdd and its compiled programs
@@ -77,12 +78,12 @@ def check_workers(workers: int, available: float | None = None, host_cores: int 
     if workers < 1:
         raise config.ConfigError(f"--workers: {workers} is not allowed; expected a positive number of processes")
     if workers > host_cores:
-        raise config.ConfigError(f"--workers: {workers} is more than this machine's {host_cores} cores; at most "
+        raise ResourceError(f"--workers: {workers} is more than this machine's {host_cores} cores; at most "
                                  f"{host_cores} (each worker computes on its share of the cores)")
     available = available_bytes() if available is None else available
     fits = int(available // RUNTIME_BYTES)
     if workers > fits:
-        raise config.ConfigError(f"--workers: {workers} workers need about {gib(workers * RUNTIME_BYTES)} "
+        raise ResourceError(f"--workers: {workers} workers need about {gib(workers * RUNTIME_BYTES)} "
                                  f"({gib(RUNTIME_BYTES)} each with JAX and the compiled program), more than the "
                                  f"{gib(available)} available; at most {max(fits, 0)}")
 

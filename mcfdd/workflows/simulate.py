@@ -12,7 +12,7 @@ from mcfdd import config, io
 from mcfdd.analysis import build
 from mcfdd.progress import note
 from mcfdd.workflows import resources
-from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure, slug
+from mcfdd.workflows.common import ResourceError, as_config, dtype_of, load_bank, precision, save_figure, slug
 
 
 def runs_table(runs) -> dict:
@@ -103,7 +103,7 @@ def _check_memory(runs: int, sim: config.SimulationConfig, one_step):
     per_sample = resources.tree_bytes(one_step) / runs
     need, available = resources.history_bytes(runs * sim.n_steps, per_sample), resources.available_bytes()
     if need > available:
-        raise config.ConfigError(f"simulation.duration_s: {runs} run(s) x {sim.n_steps} steps x {per_sample:.0f} "
+        raise ResourceError(f"simulation.duration_s: {runs} run(s) x {sim.n_steps} steps x {per_sample:.0f} "
                                  f"bytes of signals need about {resources.gib(need)} with their table, more than the "
                                  f"{resources.gib(available)} available; simulate fewer runs or shorter ones (a "
                                  f"campaign keeps no time histories)")
