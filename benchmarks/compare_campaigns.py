@@ -29,7 +29,8 @@ import numpy as np
 import pandas as pd
 
 HERE = Path(__file__).resolve().parent.parent
-RATES = ("far", "loe_far", "mdr", "identification", "stall_rate_signal", "stall_rate_model")
+RATES = ("far_loe", "far_any", "false_identification_rate", "mdr", "identification", "stall_rate_signal",
+         "stall_rate_model")  # those named in both summaries are compared (bd337dd pooled "far" and "loe_far")
 
 
 def run(checkout: Path, config: str, scenarios: int, out: Path) -> float:
@@ -77,8 +78,8 @@ def compare_tables(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> list[str]:
 
 def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
     problems, checked = [], 0
-    rates = [r for r in RATES if all(f"{r}{end}" in a.columns for end in ("", "_lo", "_hi"))]
-    merged = a.merge(b, on=["group", "stratum"], suffixes=("_a", "_b"))
+    rates = [r for r in RATES if all(f"{r}{end}" in t.columns for end in ("", "_lo", "_hi") for t in (a, b))]
+    merged = a.merge(b, on=["stratum", "label"], suffixes=("_a", "_b"))
     for _, row in merged.iterrows():
         for rate in rates:
             if not np.isfinite(row[f"{rate}_a"]) or not np.isfinite(row[f"{rate}_b"]):
@@ -88,10 +89,10 @@ def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
             inside = (row[f"{rate}_lo_b"] <= ra <= row[f"{rate}_hi_b"]
                       and row[f"{rate}_lo_a"] <= rb <= row[f"{rate}_hi_a"])
             if not inside:
-                problems.append(f"{row['group']} {row['stratum']} {rate}: {ra:.4g} [{row[f'{rate}_lo_a']:.4g}, "
+                problems.append(f"{row['stratum']} {row['label']} {rate}: {ra:.4g} [{row[f'{rate}_lo_a']:.4g}, "
                                 f"{row[f'{rate}_hi_a']:.4g}] vs {rb:.4g} [{row[f'{rate}_lo_b']:.4g}, "
                                 f"{row[f'{rate}_hi_b']:.4g}]")
-    overall = merged[merged["group"] == "overall"].iloc[0]
+    overall = merged[merged["stratum"] == "overall"].iloc[0]
     for rate in rates:
         print(f"overall {rate}: this {overall[f'{rate}_a']:.4g} [{overall[f'{rate}_lo_a']:.4g}, "
               f"{overall[f'{rate}_hi_a']:.4g}], baseline {overall[f'{rate}_b']:.4g} "

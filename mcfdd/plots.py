@@ -70,12 +70,13 @@ def flight_state(df: pd.DataFrame, title: str) -> Figure:
     return fig
 
 
-RATE_PANELS = {"far": ("false_alarms", "runs", "false-alarm rate (any alarm)"),
+RATE_PANELS = {"far_loe": ("false_alarms_loe", "fault_free_runs", "LOE false alarms per fault-free run"),
+               "far_any": ("false_alarms_any", "fault_free_runs", "any alarm (LOE, stall id.) per fault-free run"),
                "mdr": ("missed", "faulty_runs", "missed-detection rate")}
 
 
-def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far", "mdr")) -> Figure:
-    """Rates (``rates``: 'far', 'mdr') with their exact 95 % intervals for each label of one stratum.
+def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far_loe", "far_any", "mdr")) -> Figure:
+    """Rates (``rates``: keys of :data:`RATE_PANELS`) with exact 95 % intervals for each label of one stratum.
 
     Each panel has its own scale: logarithmic when a rate or bound lies below 0.1 (FAR of a few
     1e-3 stays readable), else linear from 0 to 1. A zero count is drawn as a bar up to its upper

@@ -54,12 +54,39 @@ def envelope_bin(df: pd.DataFrame) -> pd.Series:
     return pd.Series(pd.Categorical(v.astype(str) + ", " + h.astype(str), categories=order), index=df.index)
 
 
-def _rates(group: pd.DataFrame) -> dict:
+# The summary columns scripts read (README lists them). False alarms are counted per fault-free run:
+# a faulty run can false-alarm only before its onset, so pooling it would dilute the rate.
+FALSE_ALARM_COLUMNS = ("fault_free_runs", "scored_fault_free_h",
+                       "false_alarms_loe", "far_loe", "far_loe_lo", "far_loe_hi", "far_loe_per_h", "far_loe_per_h_hi",
+                       "false_alarms_any", "far_any", "far_any_lo", "far_any_hi", "far_any_per_h", "far_any_per_h_hi",
+                       "false_identifications", "false_identification_rate", "false_identification_rate_lo",
+                       "false_identification_rate_hi")
+
+
+def _false_alarms(free: pd.DataFrame, scored_s: float | None) -> dict:
+    """False alarms of the fault-free runs ``free`` (valid, no fault): LOE detection, any alarm (LOE detection or
+    eta = 1 outside stall loads), false identification; rates per run with exact intervals, and per hour of scored
+    time (``scored_s`` per run: the run after its settling time; the per-hour bound is the per-run bound times the
+    runs over the hours)."""
+    hours = len(free) * scored_s / 3600.0 if scored_s else float("nan")
+    row = {"fault_free_runs": int(len(free)), "scored_fault_free_h": hours}
+    for name, flags in (("loe", free["false_alarm"]), ("any", free["false_alarm"] | free["eta_false_signal"])):
+        r = metrics.rate(int(flags.sum()), len(free))
+        row.update({f"false_alarms_{name}": r["k"], f"far_{name}": r["rate"], f"far_{name}_lo": r["lo"],
+                    f"far_{name}_hi": r["hi"],
+                    f"far_{name}_per_h": r["k"] / hours if hours > 0 else float("nan"),
+                    f"far_{name}_per_h_hi": r["hi"] * len(free) / hours if hours > 0 else float("nan")})
+    fid = metrics.rate(int(free["false_identification"].sum()), len(free))
+    row.update({"false_identifications": fid["k"], "false_identification_rate": fid["rate"],
+                "false_identification_rate_lo": fid["lo"],
+                "false_identification_rate_hi": fid["hi"]})
+    return row
+
+
+def _rates(group: pd.DataFrame, scored_s: float | None) -> dict:
     ok = group["status"] == 0
+    free = group[ok & (group["fault_kind"] == "none")]
     faulty = ok & group["fault_kind"].isin(("leakage", "surface_damage", "disconnection")) & (group["true_model"] > 0)
-    fa_any = group["false_alarm"] | group["eta_false_signal"]
-    far = metrics.rate(int((fa_any & ok).sum()), int(ok.sum()))
-    far_loe = metrics.rate(int((group["false_alarm"] & ok).sum()), int(ok.sum()))
     mdr = metrics.rate(int((faulty & ~group["detected"]).sum()), int(faulty.sum()))
     identified = faulty & (group["identified_model"] >= 0)
     ident = metrics.rate(int((faulty & group["identified_correctly"]).sum()), int(identified.sum()))
@@ -69,15 +96,12 @@ def _rates(group: pd.DataFrame) -> dict:
     stall_sig = metrics.rate(int(group["stall_identified_signal"].sum()), events)
     stall_mod = metrics.rate(int(group["stall_identified_model"].sum()), events)
     return {
-        "runs": int(len(group)), "runs_failed": int((~ok).sum()),
-        "false_alarms": far["k"], "far": far["rate"], "far_lo": far["lo"], "far_hi": far["hi"],
-        "loe_false_alarms": far_loe["k"], "loe_far": far_loe["rate"], "loe_far_lo": far_loe["lo"],
-        "loe_far_hi": far_loe["hi"], "eta_false_alarms_signal": int((group["eta_false_signal"] & ok).sum()),
-        "eta_false_alarms_model": int((group["eta_false_model"] & ok).sum()),
+        "runs": int(len(group)), "runs_failed": int((~ok).sum()), **_false_alarms(free, scored_s),
+        "eta_false_alarms_signal": int(free["eta_false_signal"].sum()),
+        "eta_false_alarms_model": int(free["eta_false_model"].sum()),
         "faulty_runs": mdr["n"], "missed": mdr["k"], "mdr": mdr["rate"], "mdr_lo": mdr["lo"], "mdr_hi": mdr["hi"],
         "identified": ident["n"], "identified_correctly": ident["k"], "identification_accuracy": ident["rate"],
         "identification_lo": ident["lo"], "identification_hi": ident["hi"],
-        "false_identifications": int((group["false_identification"] & ok).sum()),
         "detection_time_median_s": times["median"], "detection_time_p95_s": times["p95"],
         "detection_time_max_s": times["max"], "identification_time_median_s": id_times["median"],
         "identification_time_max_s": id_times["max"],
@@ -88,20 +112,23 @@ def _rates(group: pd.DataFrame) -> dict:
         "stall_worst_latency_model_s": float(group["stall_worst_latency_model_s"].max()),
         "jammed_runs": int((ok & (group["fault_kind"] == "jamming")).sum()),
         "jam_taken_for_stall": int((ok & group["jam_taken_for_stall"]).sum()),
-        "fault_free_runs": int((ok & (group["fault_kind"] == "none")).sum()),
-        "loe_false_alarms_fault_free": int((ok & (group["fault_kind"] == "none") & group["false_alarm"]).sum()),
     }
 
 
-def summary(df: pd.DataFrame) -> pd.DataFrame:
+def summary(df: pd.DataFrame, scored_s: float | None = None) -> pd.DataFrame:
     """Rates per stratum (``overall``, ``fault``, ``envelope``, ``manoeuvre``, ``turbulence``) and, within it,
-    per ``label`` (fault class, envelope cell such as ``< 200 kt, 0-3 km``, ...). Tidy."""
+    per ``label`` (fault class, envelope cell such as ``< 200 kt, 0-3 km``, ...). Tidy.
+
+    False alarms and false identifications count the stratum's fault-free runs (:data:`FALSE_ALARM_COLUMNS`;
+    a stratum without any, such as a fault class, has none to count), with the hours of scored fault-free time
+    when ``scored_s`` (seconds scored per run: duration minus settling) is given; MDR and detection times its
+    faulty runs; eta counts (stall identification outside stall loads) its fault-free runs too."""
     strata = {"overall": pd.Series("all", index=df.index), "fault": fault_class(df), "envelope": envelope_bin(df),
               "manoeuvre": df["manoeuvre_kind"].astype(str), "turbulence": df["turbulence"].astype(str)}
     rows = []
     for stratum, labels in strata.items():
         for label, group in df.groupby(labels, sort=True, observed=True):
-            rows.append({"stratum": stratum, "label": str(label), **_rates(group)})
+            rows.append({"stratum": stratum, "label": str(label), **_rates(group, scored_s)})
     return pd.DataFrame(rows)
 
 
@@ -195,14 +222,21 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
              f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision {meta.get('git_revision')}.", "",
              "Rates with exact Clopper-Pearson 95 % intervals; n/a where there is nothing to count.", "",
-             "Detection (an LOE fault is present: the fault-free model rejected) gives FAR, MDR and detection "
-             "time; identification (the decoded signature, eq. 15) gives the identified runs, their accuracy "
-             "and time, and the confusion matrix."
+             "Detection (an LOE fault is present: the fault-free model rejected) gives false alarms, MDR and "
+             "detection time; identification (the decoded signature, eq. 15) gives the identified runs, their "
+             "accuracy and time, false identifications and the confusion matrix. False alarms count per "
+             "fault-free run (a faulty run can false-alarm only before its onset): LOE detection, any alarm (LOE "
+             "detection or a stall identification outside stall loads) and false identification; the overall "
+             f"row adds their rate per hour of scored fault-free time ({_fmt(overall['scored_fault_free_h'])} h: "
+             "each run after its settling time)."
              + ("" if stalls else " No stall load occurred in any run, so the table has no stall columns."), "",
-             "| stratum | runs | FAR (any) | LOE FAR | faulty | MDR | detection time median / p95 / max (s) "
+             f"Overall false alarms: LOE {per_hour_text(overall, 'loe')}, any alarm "
+             f"{per_hour_text(overall, 'any')}.", "",
+             "| stratum | runs | fault-free runs | LOE false alarms | any false alarm | false identifications "
+             "| faulty | MDR | detection time median / p95 / max (s) "
              "| identified: correct / runs | identification time median / max (s) "
              + ("| stall events | identified (signal) | identified (model) |" if stalls else "|"),
-             "|---" * (12 if stalls else 9) + "|"]
+             "|---" * (14 if stalls else 11) + "|"]
     for _, r in summ.iterrows():
         label = r["label"] if r["stratum"] == "overall" else f"{r['stratum']}: {r['label']}"
         stall_cells = (
@@ -210,9 +244,12 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
             f"| {_stall_cell(r['stall_identified_signal'], r['stall_events'], r['stall_worst_latency_signal_s'])} "
             f"| {_stall_cell(r['stall_identified_model'], r['stall_events'], r['stall_worst_latency_model_s'])} |"
             if stalls else "")
+        free, fid = r["fault_free_runs"], (r["false_identification_rate_lo"], r["false_identification_rate_hi"])
         lines.append(
-            f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
-            f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
+            f"| {label} | {r['runs']} | {free} "
+            f"| {_interval(r['false_alarms_loe'], free, r['far_loe_lo'], r['far_loe_hi'])} "
+            f"| {_interval(r['false_alarms_any'], free, r['far_any_lo'], r['far_any_hi'])} "
+            f"| {_interval(r['false_identifications'], free, *fid)} "
             f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
             f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} | "
             f"{_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
@@ -298,7 +335,7 @@ def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value:
 
 
 def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_window_s: float,
-                     identification: str) -> pd.DataFrame:
+                     identification: str, scored_s: float | None = None) -> pd.DataFrame:
     """Held-out campaign outcomes side by side: one row per FDD setting (e.g. 'before', 'after').
 
     ``frames`` maps the setting to its campaign scenario table, ``stall_tau_deg`` to its stall
@@ -308,14 +345,13 @@ def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_
     """
     rows = []
     for label, df in frames.items():
-        overall = summary(df).query("stratum == 'overall'").iloc[0]
+        overall = summary(df, scored_s).query("stratum == 'overall'").iloc[0]
         gap = gaps(df, deg_per_m).set_index("detector")
         ok = df["status"] == 0
         fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())
         row = {"fdd": label, **{k: overall[k] for k in (
-            "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo",
-            "loe_far_hi",
-            "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_accuracy",
+            "runs", *FALSE_ALARM_COLUMNS, "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo",
+            "mdr_hi", "identification_accuracy",
             "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
             "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
             "stall_worst_latency_model_s")}, "stall_detector_fires": fires,
@@ -358,9 +394,14 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
               "|---" * (len(validation) + 1) + "|"]
     for name, cell in (
         ("runs", lambda r: str(r["runs"])),
-        ("FAR (any, incl. eta outside stall)",
-         lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
-        ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
+        ("fault-free runs", lambda r: str(r["fault_free_runs"])),
+        ("LOE false alarms (per fault-free run)",
+         lambda r: _interval(r["false_alarms_loe"], r["fault_free_runs"], r["far_loe_lo"], r["far_loe_hi"])),
+        ("any false alarm, incl. eta outside stall (per fault-free run)",
+         lambda r: _interval(r["false_alarms_any"], r["fault_free_runs"], r["far_any_lo"], r["far_any_hi"])),
+        ("false identifications (per fault-free run)",
+         lambda r: _interval(r["false_identifications"], r["fault_free_runs"], r["false_identification_rate_lo"],
+                             r["false_identification_rate_hi"])),
         ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
         ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
         ("detection time median / p95 / max (s)",
@@ -510,10 +551,31 @@ def decisions_text(first: dict) -> str:
     return ", ".join(f"{model} at {t:.2f} s" for model, t in first.items()) or "none"
 
 
+def count_text(r: dict, k: str, n: str, rate: str) -> str:
+    """'k/n = rate [lo, hi]' of a summary row (columns ``k``, ``n``, ``rate``, ``rate_lo``, ``rate_hi``), n/a for
+    n = 0."""
+    return NA if r[n] == 0 else f"{r[k]}/{r[n]} = {rate_text(r, rate)}"
+
+
+def per_hour_text(r: dict, name: str) -> str:
+    """False alarms ('loe' or 'any') per hour of scored fault-free time with the upper bound, or n/a."""
+    if not r["scored_fault_free_h"] > 0:
+        return NA
+    return f"{r[f'far_{name}_per_h']:.3g} per scored hour (< {r[f'far_{name}_per_h_hi']:.3g} at 95 %)"
+
+
 def campaign_lines(overall: dict, workers: pd.DataFrame | None) -> list[str]:
-    """The overall rates of a campaign, and each worker's throughput when its chunks ran on workers."""
+    """The overall rates of a campaign (false alarms per fault-free run, LOE and any alarm apart, false
+    identifications beside them; MDR of the faulty runs), and each worker's throughput when chunks ran on
+    workers."""
     stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
-    lines = [f"{overall['runs']} scenarios: FAR {rate_text(overall, 'far')}, MDR {rate_text(overall, 'mdr')}{stalls}"]
+    o, free = overall, "fault_free_runs"
+    lines = [f"{o['runs']} scenarios ({o[free]} fault-free, {o['faulty_runs']} with a parametric fault): MDR "
+             f"{count_text(o, 'missed', 'faulty_runs', 'mdr')}{stalls}",
+             f"false alarms per fault-free run: LOE {count_text(o, 'false_alarms_loe', free, 'far_loe')}, "
+             f"{per_hour_text(o, 'loe')}; any alarm (LOE or stall identification) "
+             f"{count_text(o, 'false_alarms_any', free, 'far_any')}; false identifications "
+             f"{count_text(o, 'false_identifications', free, 'false_identification_rate')}"]
     if workers is not None and len(workers):
         lines.append(f"workers: {len(workers)}; " + ", ".join(
             f"{w['worker']} {w['scenarios']} scen in {w['chunks']} chunk(s), {w['scenario_steps_per_s']:.3g} "
@@ -548,7 +610,8 @@ def worst_case_lines(summ: pd.DataFrame, value: str) -> list[str]:
 
 
 def tune_lines(validation: pd.DataFrame) -> list[str]:
-    return [f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
+    return [f"{r['fdd']}: false alarms in {r['fault_free_runs']} fault-free runs: LOE {r['false_alarms_loe']}, any "
+            f"{r['false_alarms_any']}; MDR "
             f"{r['missed']}/{r['faulty_runs']}, detection time median "
             f"{value_text(r['detection_time_median_s'], unit=' s')}, stall detector above tau outside stalls in "
             f"{r['stall_detector_fires']} runs" for _, r in validation.iterrows()]

@@ -109,7 +109,7 @@ def test_script_reruns_with_new_tau_without_compiling_and_matches_the_cli(in_mem
     assert len(second.scenarios) == N_SHORT and second.simulated == N_SHORT
     pd.testing.assert_frame_equal(second.scenarios, scenario_table(cli_run))
     assert len(list((cli_run / "scenarios").glob("part-*.parquet"))) == 3
-    assert second.overall()["false_alarms"] > first.overall()["false_alarms"], "a lower tau_m alarms more often"
+    assert second.overall()["false_alarms_any"] > first.overall()["false_alarms_any"], "a lower tau alarms more often"
 
 
 def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
@@ -205,10 +205,10 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
         table["eta_false_signal_time_s"].to_numpy(), nan=np.inf))
     alarms = int((ok & np.isfinite(alarm_times)).sum())
     assert 0 < alarms < N_SHORT, "the low tau_m should alarm in some runs, not all"
-    assert overall["false_alarms"] == alarms
+    assert overall["fault_free_runs"] == N_SHORT and overall["false_alarms_any"] == alarms
     ref = binomtest(alarms, N_SHORT).proportion_ci(confidence_level=0.95, method="exact")
-    assert overall["far"] == pytest.approx(alarms / N_SHORT)
-    assert (overall["far_lo"], overall["far_hi"]) == pytest.approx((ref.low, ref.high), abs=1e-12)
+    assert overall["far_any"] == pytest.approx(alarms / N_SHORT)
+    assert (overall["far_any_lo"], overall["far_any_hi"]) == pytest.approx((ref.low, ref.high), abs=1e-12)
     assert (out / "summary.md").read_text().startswith("# Campaign fault_free")
     assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
     assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
@@ -221,7 +221,7 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
         assert not (out / png).exists()
         assert f"- `{png}` left out: no" in text
     assert (out / "stall_latency.png").exists() == (overall["stall_events"] > 0)
-    assert "(FAR only: no faulty runs, so no MDR panel)" in text
+    assert "(false alarms only: no faulty runs, so no MDR panel)" in text
     assert set(summ["stratum"]) == {"overall", "fault", "envelope", "manoeuvre", "turbulence"}
     assert "group" not in summ.columns
 

@@ -351,7 +351,7 @@ def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
     assert "stall events" not in text and "worst" not in text  # no stall columns without a stall load
     overall = summ[summ["stratum"] == "overall"].iloc[0].to_dict()
     assert report.rate_text(overall, "mdr") == "n/a"
-    assert report.rate_text(overall, "far").startswith(f"{overall['far']:.4g} [")
+    assert report.rate_text(overall, "far_loe").startswith(f"{overall['far_loe']:.4g} [")
     assert report.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
     assert report.decisions_text({}) == "none"
     assert report.value_text(float("nan"), ".2f", " s") == "n/a" and report.value_text(1.234, ".2f", " s") == "1.23 s"
@@ -513,3 +513,37 @@ def test_resume_without_anything_to_rebuild_from_says_how(small, tmp_path, capsy
     (tmp_path / "c").mkdir()
     line = refused(capsys, "campaign", small, "--out", tmp_path / "c", "--resume")
     assert "campaign.json missing and no scenario part to rebuild it from" in line and "without --resume" in line
+
+
+def test_false_alarms_are_counted_per_fault_free_run_loe_and_any_apart(small, tmp_path, capsys):
+    """A faulty run can false-alarm only before its onset: the rates count the fault-free runs alone (LOE
+    detection, any alarm, false identification), per run and per hour of scored time, in the table, the printed
+    lines and summary.md."""
+    alarming = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
+                "fdd.loe.confirm_s": 0.0, "fdd.loe.excitation_floor_deg": 0.005}
+    out = tmp_path / "c"
+    assert cli.main(["campaign", str(small), "--out", str(out),
+                     *[a for k, v in alarming.items() for a in ("--set", f"{k}={v}")]]) == 0
+    printed = capsys.readouterr().out
+    table = pd.read_parquet(out / "scenarios")
+    ok = table["status"] == 0
+    free = table[ok & (table["fault_kind"] == "none")]
+    before_onset = table[ok & (table["fault_kind"] != "none") & table["false_alarm"]]
+    assert len(before_onset) > 0, "faulty runs that alarm before their onset (so pooling would change the rate)"
+    loe, any_alarm = int(free["false_alarm"].sum()), int((free["false_alarm"] | free["eta_false_signal"]).sum())
+    identifications = int(free["false_identification"].sum())
+    overall = pd.read_parquet(out / "summary.parquet").query("stratum == 'overall'").iloc[0]
+    hours = len(free) * (4.0 - 0.5) / 3600.0
+    assert (overall["fault_free_runs"], overall["false_alarms_loe"], overall["false_alarms_any"],
+            overall["false_identifications"]) == (len(free), loe, any_alarm, identifications)
+    assert overall["far_loe"] == pytest.approx(loe / len(free)) and overall["far_any"] == pytest.approx(
+        any_alarm / len(free))
+    assert overall["scored_fault_free_h"] == pytest.approx(hours) and overall["far_loe_per_h"] == pytest.approx(
+        loe / hours)
+    assert not {"far", "far_lo", "far_hi", "loe_far", "false_alarms", "loe_false_alarms"} & set(overall.index)
+    assert f"false alarms per fault-free run: LOE {loe}/{len(free)} = " in printed
+    assert f"any alarm (LOE or stall identification) {any_alarm}/{len(free)} = " in printed
+    assert f"false identifications {identifications}/{len(free)}" in printed
+    text = (out / "summary.md").read_text()
+    assert "| fault-free runs | LOE false alarms | any false alarm | false identifications |" in text
+    assert f"| all | {len(table)} | {len(free)} | {loe}/{len(free)} = " in text

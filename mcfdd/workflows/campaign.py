@@ -32,9 +32,9 @@ from mcfdd.workflows.common import (DEG_PER_RAD, OutputFolderError, as_config, c
 # round otherwise, for at most 15 padded scenarios per device and chunk.
 LANE_BLOCK = 16
 PLOTS = {
-    "rates_by_fault": "FAR and MDR per fault class with their 95 % intervals",
-    "rates_by_envelope": "FAR and MDR per speed and altitude cell",
-    "rates_by_manoeuvre": "FAR and MDR per manoeuvre family",
+    "rates_by_fault": "false alarms per fault-free run (LOE, any) and MDR per fault class with their 95 % intervals",
+    "rates_by_envelope": "false alarms per fault-free run (LOE, any) and MDR per speed and altitude cell",
+    "rates_by_manoeuvre": "false alarms per fault-free run (LOE, any) and MDR per manoeuvre family",
     "detection_times": "detection latency per fault class (detected runs)",
     "confusion": "identification confusion (true nearest model against decided model, jammed runs included) and, "
                  "with stall loads or jams, stall identification against the truth",
@@ -232,6 +232,11 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
     return table
 
 
+def scored_seconds(cfg: config.CampaignConfig) -> float:
+    """Seconds of each run that are scored for false alarms: the run after its settling time."""
+    return cfg.campaign.duration_s - cfg.evaluation.settle_s
+
+
 class CampaignResult:
     """A finished campaign: its tables, provenance, figures and files.
 
@@ -240,8 +245,10 @@ class CampaignResult:
             in the names), outcomes (false alarm, detection, identification, stall events, status
             as :class:`mcfdd.Status` codes) and per filter i ``ratio_max_pre_i`` /
             ``ratio_min_post_i`` (theta_i / ||u|| before the fault and in the detection window).
-        summary: FAR, MDR, identification and stall rates with Clopper-Pearson 95 % intervals,
-            overall and per stratum (columns ``stratum`` and ``label``).
+        summary: false alarms per fault-free run (LOE detection ``far_loe``, any alarm ``far_any``, false
+            identifications; also per hour of scored fault-free time), MDR of the faulty runs,
+            identification and stall rates, with Clopper-Pearson 95 % intervals, overall and per stratum
+            (columns ``stratum`` and ``label``; :data:`mcfdd.report.FALSE_ALARM_COLUMNS`).
         confusion: true nearest model (rows) against decided model (columns), counts.
         gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector.
         detectability: FAR and MDR per fault class, dynamic-pressure bin and peak-load-fraction
@@ -262,13 +269,13 @@ class CampaignResult:
         self._parts = parts
         self.workers = workers
         deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
-        self.summary = report.summary(scenarios)
+        self.summary = report.summary(scenarios, scored_seconds(cfg))
         self.confusion = report.confusion(scenarios, list(models))
         self.gaps = report.gaps(scenarios, deg_per_m)
         self.detectability = report.detectability(scenarios)
 
     def overall(self) -> dict:
-        """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
+        """The overall row of :attr:`summary` as a dict (runs, fault_free_runs, far_loe, far_any, mdr, ...)."""
         return self.summary[self.summary["stratum"] == "overall"].iloc[0].to_dict()
 
     def left_out(self) -> dict:
@@ -304,7 +311,7 @@ class CampaignResult:
         if why:
             raise ValueError(f"plot: {name!r} is not drawn for this campaign: {why}")
         if name.startswith("rates_by_"):
-            rates = ("far", "mdr") if self.overall()["faulty_runs"] > 0 else ("far",)
+            rates = ("far_loe", "far_any") + (("mdr",) if self.overall()["faulty_runs"] > 0 else ())
             return plots.rates_by_stratum(self.summary, name[len("rates_by_"):], rates)
         if name == "detection_times":
             return plots.detection_times(self.scenarios, report.fault_class(self.scenarios))
@@ -366,7 +373,7 @@ class CampaignResult:
         from mcfdd import report
 
         left_out = self.left_out()
-        no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
+        no_mdr = " (false alarms only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
         drawn = {name: what + (no_mdr if name.startswith("rates_by_") else "") for name, what in PLOTS.items()
                  if name not in left_out}
         written = [io.write_text(out / folder.CAMPAIGN_STATE, folder.state_text(self.config))]
