@@ -167,7 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config key by its dotted path, e.g. --set fdd.loe.tau=0.12 (repeatable)")
+                   help="override a config key by its dotted path, e.g. --set fdd.loe.detection_tau=0.12 (the "
+                   "detection threshold; repeatable)")
     _cluster_flags(p)
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")

@@ -1189,7 +1189,7 @@ def set_overrides(pairs) -> dict:
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.tau=0.12")
+            raise ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.detection_tau=0.12")
         try:
             overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
         except tomllib.TOMLDecodeError:

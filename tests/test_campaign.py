@@ -152,7 +152,8 @@ def test_chunks_are_evened_out_and_padded_only_to_whole_lanes(tmp_path, capsys):
                 assert size % (used * runner.LANE_BLOCK) == 0 and used == min(devices, size // runner.LANE_BLOCK)
                 assert chunks <= fewest  # no more chunks than the requested size makes
                 assert chunks * size - n < fewest * used * runner.LANE_BLOCK  # less than a lane block per device
-    assert run_cli("campaign", FAULT_FREE, "--out", tmp_path / "ten", *cli_flags({**SHORT, "campaign.scenarios": 10})) == 0
+    ten = cli_flags({**SHORT, "campaign.scenarios": 10})
+    assert run_cli("campaign", FAULT_FREE, "--out", tmp_path / "ten", *ten) == 0
     assert "10 to run in 1 chunk(s) of 16 (1 device(s) x 16; 6 padding scenarios)" in capsys.readouterr().err
 
 
