@@ -175,3 +175,18 @@ def test_the_summary_columns_scripts_read_are_all_listed(api):
     section = README[README.index("The summary's columns"):README.index("Detectability: each scenario row")]
     listed = set(re.findall(r"`([a-z_0-9]+)`", section)) - {"k", "n", "_lo", "_hi"}
     assert listed == set(api["result"].summary.columns), sorted(listed ^ set(api["result"].summary.columns))
+
+
+def test_every_timing_says_under_which_conditions_it_holds():
+    """A time taken on this project's machine (a duration stated with its cores) says whether the cores were idle
+    or loaded; the first command's and the test suite's time say the state of the compilation cache too."""
+    prose = re.sub(r"^```.*?^```", "", README, flags=re.S | re.M).replace("\n", " ")
+    sentences = re.split(r"(?<=[.;:])\s+(?=[A-Z(`])", prose)
+    duration = re.compile(r"\b(half a minute|a minute|[\d.,]+ ?(s|min)|[a-z]+ (to [a-z]+ )?minutes?|tens of seconds)\b")
+    timed = [x for x in sentences if "core" in x and duration.search(x)]
+    assert len(timed) >= 5
+    for sentence in timed:
+        assert "idle" in sentence or "loaded" in sentence, sentence
+    for start in ("The first command installs", "The second installs the test dependencies"):
+        [sentence] = [x for x in timed if x.startswith(start)]
+        assert "compilation cache" in sentence, sentence
