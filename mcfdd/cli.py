@@ -29,11 +29,11 @@ def _written(paths):
 
 def cmd_simulate(args) -> int:
     import mcfdd
-    from mcfdd import io, report
+    from mcfdd import console, io
 
     result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
     _written(result.save(io.out_dir("simulate", args.config, args.out)))
-    _print(report.simulate_lines(result.summary()))
+    _print(console.simulate_lines(result.summary()))
     return 0
 
 
@@ -52,7 +52,7 @@ def _campaign_config(args):
 
 def cmd_campaign(args) -> int:
     import mcfdd
-    from mcfdd import io, report
+    from mcfdd import console, io
 
     cfg = _campaign_config(args)
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
@@ -65,54 +65,54 @@ def cmd_campaign(args) -> int:
         kept = "finished chunks are kept in {}; continue with --resume".format(out / "scenarios")
         _say(f"\nmcfdd: interrupted: {kept if (out / 'campaign.json').is_file() else 'nothing was written'}")
         return INTERRUPTED
-    _print(report.campaign_lines(result.overall(), None if executor is None else result.workers))
+    _print(console.campaign_lines(result.overall(), None if executor is None else result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
 
 
 def cmd_fit_lpv(args) -> int:
     import mcfdd
-    from mcfdd import io, report
+    from mcfdd import console, io
 
     result = mcfdd.fit_lpv(args.config)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
-    _print(report.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
+    _print(console.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
     return 0
 
 
 def cmd_worst_case(args) -> int:
     import mcfdd
-    from mcfdd import io, report
+    from mcfdd import console, io
 
     result = mcfdd.worst_case(args.config)
     out = io.out_dir("worst-case", args.config, args.out)
     result.save(out, f"Worst case {Path(args.config).stem}")
-    _print(report.worst_case_lines(result.summary, result.value))
+    _print(console.worst_case_lines(result.summary, result.value))
     print(f"report: {out / 'report.md'}")
     return 0
 
 
 def cmd_tune(args) -> int:
     import mcfdd
-    from mcfdd import io, report
+    from mcfdd import console, io
 
     out = io.out_dir("tune", args.config, args.out, new=True)
     if out.exists() and any(out.iterdir()):
         raise mcfdd.OutputFolderError(f"--out: {out} exists and is not empty; choose another folder")
     result = mcfdd.tune(args.config)
     result.save(out)
-    _print(report.tune_lines(result.validation))
+    _print(console.tune_lines(result.validation))
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
     return 0
 
 
 def cmd_figures(args) -> int:
     import mcfdd
-    from mcfdd import report
+    from mcfdd import console
 
     result = mcfdd.paper_figures(args.configs)
     _written(result.save(Path(args.out) if args.out else Path("results") / "figures"))
-    _print(report.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
+    _print(console.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
     return 0
 
 

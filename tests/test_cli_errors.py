@@ -19,7 +19,7 @@ import pytest
 from test_campaign import SMALL
 
 import mcfdd
-from mcfdd import cli, io, report
+from mcfdd import cli, console, io, report
 from mcfdd.analysis import build
 from mcfdd.workflows import campaign as campaign_workflow
 
@@ -27,11 +27,16 @@ N = 384
 CONFIGS = pathlib.Path(__file__).resolve().parent.parent / "configs"
 
 
-@pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    path = tmp_path_factory.mktemp("config") / "small.toml"
+def small_config(folder) -> pathlib.Path:
+    """The small campaign's config file, written into ``folder``."""
+    path = folder / "small.toml"
     path.write_text(SMALL.format(n=N))
     return path
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    return small_config(tmp_path_factory.mktemp("config"))
 
 
 @pytest.fixture(scope="module")
@@ -350,11 +355,11 @@ def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
     assert "nan" not in text and "n/a" in text
     assert "stall events" not in text and "worst" not in text  # no stall columns without a stall load
     overall = summ[summ["stratum"] == "overall"].iloc[0].to_dict()
-    assert report.rate_text(overall, "mdr") == "n/a"
-    assert report.rate_text(overall, "far_loe").startswith(f"{overall['far_loe']:.4g} [")
-    assert report.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
-    assert report.decisions_text({}) == "none"
-    assert report.value_text(float("nan"), ".2f", " s") == "n/a" and report.value_text(1.234, ".2f", " s") == "1.23 s"
+    assert console.rate_text(overall, "mdr") == "n/a"
+    assert console.rate_text(overall, "far_loe").startswith(f"{overall['far_loe']:.4g} [")
+    assert console.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
+    assert console.decisions_text({}) == "none"
+    assert console.value_text(float("nan"), ".2f", " s") == "n/a" and console.value_text(1.234, ".2f", " s") == "1.23 s"
 
 
 STARTUP = """

@@ -3,6 +3,10 @@
 A chunk is rebuilt from the config and its scenario ids alone (:func:`run_chunk`), so it can run
 in process or on any ``concurrent.futures.Executor``; the driver collects the chunk tables and,
 with an output folder, writes one Parquet part per chunk as they arrive.
+
+Over 400 lines because the set-up, the chunk plan, the result object and the driver share the
+campaign's state; the output folder's rules are in :mod:`mcfdd.workflows.folder`, resource
+estimates in :mod:`mcfdd.workflows.resources`.
 """
 
 from __future__ import annotations
