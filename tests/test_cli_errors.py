@@ -237,7 +237,7 @@ def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
 def test_an_in_process_campaign_prints_no_workers_line(small, tmp_path, capsys):
     assert cli.main(["campaign", str(small), "--out", str(tmp_path / "c")]) == 0
     out = capsys.readouterr().out
-    assert f"{N} scenarios: FAR " in out and "summary: " in out
+    assert f"{N} scenarios (" in out and "false alarms per fault-free run: LOE " in out and "summary: " in out
     assert "workers:" not in out
 
 
