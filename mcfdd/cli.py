@@ -7,7 +7,6 @@ neither JAX nor the workflows; each command imports what it runs.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import warnings
 from pathlib import Path
@@ -52,7 +51,7 @@ def _campaign_config(args):
 
 def cmd_campaign(args) -> int:
     import mcfdd
-    from mcfdd import console, io
+    from mcfdd import console, interrupts, io
 
     cfg = _campaign_config(args)
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
@@ -64,7 +63,7 @@ def cmd_campaign(args) -> int:
     except KeyboardInterrupt:
         kept = "finished chunks are kept in {}; continue with --resume".format(out / "scenarios")
         _say(f"\nmcfdd: interrupted: {kept if (out / 'campaign.json').is_file() else 'nothing was written'}")
-        return INTERRUPTED
+        return interrupts.INTERRUPTED
     _print(console.campaign_lines(result.overall(), None if executor is None else result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
@@ -189,94 +188,36 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
     return f"mcfdd: warning: {message}\n"
 
 
-INTERRUPTED = 130  # exit status after Ctrl-C (SIGINT), as a shell gives it
-
-
-def _stop_now(code: int):
-    """End this process at once with status ``code``, its output flushed, without tearing down JAX's runtime.
-
-    An interrupt can leave an XLA compilation running on the runtime's thread pool: JAX compiles
-    asynchronously and the interrupt breaks only the wait for it. The interpreter's shutdown then
-    destroys the PjRt client under that compilation (its devices before its compile threads),
-    and the process died by SIGSEGV after its "interrupted" line. What is worth keeping is on
-    disk already (each part is written whole and renamed into place; the kernel releases the
-    folder's lock), so the process ends here instead of shutting the runtime down; only
-    multiprocessing's exit handler runs first, so the semaphores of a local Dask cluster closed on
-    the way are released (else its resource tracker reports them leaked).
-    """
-    from multiprocessing import util
-
-    util._exit_function()  # multiprocessing's own exit handler: a closed local cluster's semaphores released
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
-
-
 def main(argv=None) -> int:
     """Run the command of ``argv`` and return its exit status (0, 2 for a user's mistake, 130 interrupted).
 
     ``argv`` None is this process's command line (the ``mcfdd`` command): an interrupt then ends the
-    process with status 130 right after its one line (:func:`_stop_now`), in whatever phase it comes.
+    process with status 130 right after its one line (:func:`mcfdd.interrupts.stop_now`), in whatever
+    phase it comes, and an interrupt Python would ignore is delivered again.
     """
     warnings.formatwarning = _one_line_warning
-    if argv is None:
-        sys.unraisablehook = _interrupts_redelivered
     args = build_parser().parse_args(argv)
+    from mcfdd import interrupts
+
+    if argv is None:
+        sys.unraisablehook = interrupts.redeliver_ignored
     code = _run(args)
-    if code == INTERRUPTED and argv is None:
-        _stop_now(code)
+    if code == interrupts.INTERRUPTED and argv is None:
+        interrupts.stop_now(code)
     return code
 
 
-def _interrupts_redelivered(unraisable):
-    """An interrupt that lands in a garbage-collection callback (JAX registers one; imports collect often) is
-    ignored by Python, and the command went on; it is raised again 50 ms later (a SIGALRM), once this hook has
-    returned, and again until it lands in the command's own code."""
-    import signal
-
-    if issubclass(unraisable.exc_type, KeyboardInterrupt) and hasattr(signal, "setitimer"):  # not on Windows
-        signal.signal(signal.SIGALRM, _interrupt_again)
-        signal.setitimer(signal.ITIMER_REAL, 0.05)
-    else:
-        sys.__unraisablehook__(unraisable)
-
-
-def _interrupt_again(signum, frame):
-    if frame is not None and frame.f_code is _interrupts_redelivered.__code__:
-        import signal
-
-        signal.setitimer(signal.ITIMER_REAL, 0.05)  # still in the hook, where an exception would be ignored
-        return
-    raise KeyboardInterrupt
-
-
-def _start_runtime():
-    """Import JAX and the workflows' common edge (NumPy, pandas, Arrow) and start JAX's devices, with Ctrl-C held
-    until they are done (a few seconds), then honoured: an interrupt inside the import of jaxlib's native module
-    crashed the process (SIGSEGV in nanobind's teardown of the half-made module)."""
-    import signal
-    import threading
-
-    held = []
-    main_thread = threading.current_thread() is threading.main_thread()  # signal handlers are set there only
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if main_thread else None
-    try:
-        import jax
-
-        from mcfdd.workflows import common  # noqa: F401
-
-        jax.devices()
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
-    if held:
-        raise KeyboardInterrupt
-
-
 def _run(args) -> int:
+    from mcfdd import interrupts
+
     try:
         if args.func is not cmd_schema:
-            _start_runtime()
+            with interrupts.held():  # JAX and the edge imported, JAX's devices started
+                import jax
+
+                from mcfdd.workflows import common
+
+                jax.devices()
         from mcfdd import config
         from mcfdd.workflows import common
 
@@ -292,7 +233,7 @@ def _run(args) -> int:
             return 2
     except KeyboardInterrupt:
         _say("\nmcfdd: interrupted")
-        return INTERRUPTED
+        return interrupts.INTERRUPTED
 
 
 if __name__ == "__main__":
