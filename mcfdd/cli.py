@@ -26,11 +26,24 @@ def _written(paths):
         _say(f"wrote {path}")
 
 
+def _start_runtime():
+    """Import JAX and start its devices with Ctrl-C held meanwhile (:func:`mcfdd.interrupts.held`); each command
+    calls it once its configuration is read, so a mistake there is named without waiting for JAX."""
+    from mcfdd import interrupts
+
+    with interrupts.held():
+        import jax
+
+        jax.devices()
+
+
 def cmd_simulate(args) -> int:
     import mcfdd
     from mcfdd import console, io
 
-    result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
+    cfg = mcfdd.load_config(args.config, "simulate")
+    _start_runtime()
+    result = mcfdd.simulate(cfg)
     _written(result.save(io.out_dir("simulate", args.config, args.out)))
     _print(console.simulate_lines(result.summary()))
     return 0
@@ -56,6 +69,7 @@ def cmd_campaign(args) -> int:
     cfg = _campaign_config(args)
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
     try:
+        _start_runtime()
         with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
                                      args.connect_timeout) as executor:
             result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
@@ -73,7 +87,9 @@ def cmd_fit_lpv(args) -> int:
     import mcfdd
     from mcfdd import console, io
 
-    result = mcfdd.fit_lpv(args.config)
+    cfg = mcfdd.load_config(args.config, "fit-lpv")
+    _start_runtime()
+    result = mcfdd.fit_lpv(cfg)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
     _print(console.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
     return 0
@@ -83,7 +99,9 @@ def cmd_worst_case(args) -> int:
     import mcfdd
     from mcfdd import console, io
 
-    result = mcfdd.worst_case(args.config)
+    cfg = mcfdd.load_config(args.config, "worst-case")
+    _start_runtime()
+    result = mcfdd.worst_case(cfg)
     out = io.out_dir("worst-case", args.config, args.out)
     result.save(out, f"Worst case {Path(args.config).stem}")
     _print(console.worst_case_lines(result.summary, result.value))
@@ -98,7 +116,9 @@ def cmd_tune(args) -> int:
     out = io.out_dir("tune", args.config, args.out, new=True)
     if out.exists() and any(out.iterdir()):
         raise mcfdd.OutputFolderError(f"--out: {out} exists and is not empty; choose another folder")
-    result = mcfdd.tune(args.config)
+    cfg = mcfdd.load_config(args.config, "tune")
+    _start_runtime()
+    result = mcfdd.tune(cfg)
     result.save(out)
     _print(console.tune_lines(result.validation))
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
@@ -109,6 +129,7 @@ def cmd_figures(args) -> int:
     import mcfdd
     from mcfdd import console
 
+    _start_runtime()
     result = mcfdd.paper_figures(args.configs)
     _written(result.save(Path(args.out) if args.out else Path("results") / "figures"))
     _print(console.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
@@ -211,15 +232,9 @@ def _run(args) -> int:
     from mcfdd import interrupts
 
     try:
-        if args.func is not cmd_schema:
-            with interrupts.held():  # JAX and the edge imported, JAX's devices started
-                import jax
-
-                from mcfdd.workflows import common
-
-                jax.devices()
-        from mcfdd import config
-        from mcfdd.workflows import common
+        with interrupts.held():  # native modules imported (NumPy, pandas, Arrow; JAX if the config needs it)
+            from mcfdd import config
+            from mcfdd.workflows import common
 
         try:
             common.check_folder(getattr(args, "out", None), "--out")
