@@ -10,6 +10,7 @@ smooth tau_d <= tau_d + T log steps.
 """
 
 import math
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -201,3 +202,13 @@ def test_detection_tuning_end_to_end(tmp_path):
     assert (tmp_path / "out" / "validation" / "compare" / "compare.md") in written
     fragment = config.load_fdd_fragment(tmp_path / "out" / "tuned_fdd.toml")
     assert fragment == result.fdd
+
+
+def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs():
+    root = Path(__file__).resolve().parents[1] / "configs"
+    cfg = config.load(config.TuneConfig, root / "tune_validation.toml")
+    shipped = config.load(config.CampaignConfig, root / "validation.toml")
+    assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
+    cells = len(cfg.values("fault_kind"))
+    assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
+    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation

@@ -124,9 +124,9 @@ def bounds(fdd_params, settings, data: tuning.TrainingSet, must, temperature, dt
     """tau_f and tau_d of the detection level over the training set, smooth and hard (theta_0 / ||u||).
 
     ``must``: (B,) the runs over which tau_d is taken. Keys: ``soft_free``, ``soft_detect`` (the
-    surrogates; only with a ``temperature``), ``tau_f``, ``tau_d`` (hard; nan where no run counts), ``false_alarms`` (valid runs
-    with a false alarm), ``missed`` (must-detect runs missed), ``detection_time_s`` (median over the
-    must-detect runs detected, from the onset; nan if none).
+    surrogates; only with a ``temperature``), ``tau_f``, ``tau_d`` (hard; nan where no run counts),
+    ``false_alarms`` (valid runs with a false alarm), ``missed`` (must-detect runs missed),
+    ``detection_time_s`` (median over the must-detect runs detected, from the onset; nan if none).
     """
     columns = tuning.training_columns(fdd_params, settings, data, temperature, dt_s)
     ok = columns["status"] == scoring.Status.OK

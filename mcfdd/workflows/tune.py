@@ -119,9 +119,10 @@ def tune(cfg, progress: bool = True) -> TuneResult:
     With ``tune.level = "detection"`` (LOE bank) the detection level is tuned instead
     (:mod:`mcfdd.workflows.tune_detection`: detection thresholds, excitation floor, evaluator, pole on
     the detection monitor's margins; ``threshold_scan`` is then the Pareto scan of the thresholds and
-    ``comparison`` the held-out campaigns' paired comparison). The plant histories of the training campaign are simulated once; the detector's parameters
-    follow Adam on the smooth log(tau_d / tau_f) through an FDD-only scan; tau is placed in the
-    gap; the held-out campaign runs with the FDD before and after, in one compilation.
+    ``comparison`` the held-out campaigns' paired comparison). Otherwise the plant histories of the
+    training campaign are simulated once; the detector's parameters follow Adam on the smooth
+    log(tau_d / tau_f) through an FDD-only scan; tau is placed in the gap; the held-out campaign
+    runs with the FDD before and after, in one compilation.
 
     Args:
         cfg: a 'tune' config (:func:`mcfdd.load_config`), or a TOML path or dict of one.

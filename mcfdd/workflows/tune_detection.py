@@ -183,7 +183,8 @@ def markdown(cfg, source, n, n_must, history, best, positive, scan, parameters, 
              f"the detection monitor's margins (units theta_0 / ||u||; temperature {ts.temperature}), Adam, "
              f"{ts.iterations} iterations at learning rate {ts.learning_rate} on the parameters' logarithms "
              f"({times['tune']:.1f} s). Iteration {best} (largest hard gap) kept: tau_f {b['tau_f']:.4g}, tau_d "
-             f"{b['tau_d']:.4g}: {'a positive gap' if positive else 'NO positive gap on the training set; the trade-off below'}.",
+             f"{b['tau_d']:.4g}: "
+             + ("a positive gap." if positive else "NO positive gap on the training set; the trade-off below."),
              "", f"Thresholds: detection_tau and detection_contrast scaled by {ts.threshold_candidates} factors in "
              f"{list(ts.scan_scales)} ({times['scan']:.1f} s); chosen: the smallest factor from which no candidate "
              f"alarms on the training set, times {ts.safety}.", "", "## Parameters", "", *_table(parameters), "",
