@@ -175,7 +175,8 @@ def markdown(cfg, source, n, n_must, history, best, positive, scan, parameters, 
             + (f" with peak load fraction >= {ts.min_peak_load_fraction}" if ts.min_peak_load_fraction else ""))
     b = history.iloc[best]
     title = f"Tuning {Path(source).stem}" if source is not None else "Tuning"
-    keep = ["fdd", "runs", "loe_false_alarms", "false_alarms", "faulty_runs", "missed"] + [
+    keep = ["fdd", "runs", "fault_free_runs", "false_alarms_loe", "false_alarms_any", "false_identifications",
+            "faulty_runs", "missed"] + [
         c for c in validation.columns if c.startswith("held_out_")]
     lines = [f"# {title} (LOE detection level)", "",
              f"Training: {n} stored plant histories of {tr.duration_s} s (seed {tr.seed}; simulated once in "
