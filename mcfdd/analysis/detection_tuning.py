@@ -20,7 +20,7 @@ and the smooth surrogates replace the max (min) over runs by the log-sum-exp at 
 smooth margins (:func:`mcfdd.analysis.scoring.smooth.soft_max`); both tend to the hard bounds as
 T -> 0. ``tau_d > tau_f`` is a positive gap: raising the detection thresholds by anything between
 the two leaves no false alarm and no missed detection on the training set. The objective is the
-smooth gap ``tau_d - tau_f``, ascended by Adam.
+smooth gap ``tau_d - tau_f``, ascended by Adam (:func:`mcfdd.analysis.tuning.tune`).
 
 The runs that must be detected are a mask over the training set (:func:`must_detect_mask`): the
 campaign's ``must_detect`` runs that are also ``separable`` (the fault's gain distance at the run's
@@ -42,9 +42,8 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
-from mcfdd.analysis import metrics, optimise, scoring, tuning
+from mcfdd.analysis import metrics, scoring, tuning
 from mcfdd.analysis.scoring import smooth
 from mcfdd.fdd import evaluator, system
 
@@ -182,16 +181,6 @@ def evaluate(fdd_params, settings, data: tuning.TrainingSet, must, temperature, 
 def evaluate_columns(fdd_params, settings, data: tuning.TrainingSet, dt_s: float) -> dict:
     """The monitors' hard columns over the training set (B,), one jit."""
     return tuning.training_columns(fdd_params, settings, data, None, dt_s)
-
-
-def tune(gap_and_grad_fn, theta0: dict, iterations: int, learning_rate: float, callback=None) -> tuning.Result:
-    """Adam ascent of the smooth gap (:func:`mcfdd.analysis.optimise.run`); evaluations: iterations + 1."""
-    def fn(theta):
-        gap, b, grad = gap_and_grad_fn(theta)
-        return float(gap), {k: float(v) for k, v in b.items()}, grad
-
-    trace = optimise.run(fn, theta0, optax.adam(learning_rate), iterations, maximize=True, callback=callback)
-    return tuning.Result(trace.params, np.asarray(trace.values), trace.aux)
 
 
 def best_iterate(result: tuning.Result) -> int:

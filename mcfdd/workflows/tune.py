@@ -113,6 +113,24 @@ class TuneResult:
         return written
 
 
+def held_out(cfg: config.TuneConfig, tuned: config.FddConfig, deg_per_m: float, progress: bool):
+    """The held-out campaign with the configured FDD ('before') and ``tuned`` ('after'), one compilation.
+
+    Returns (campaigns by label, XLA compilations by label, seconds, :func:`mcfdd.report.validation_table`).
+    """
+    campaigns, compiles = {}, {}
+    start = time.perf_counter()
+    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
+        note(f"held-out campaign, FDD {label} tuning", progress)
+        with CompileCounter() as counter:
+            campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
+        compiles[label] = counter.count
+    seconds = time.perf_counter() - start
+    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
+                                         cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
+    return campaigns, compiles, seconds, validation
+
+
 def tune(cfg, progress: bool = True) -> TuneResult:
     """Tune one detector's evaluator (alpha, beta, gamma), pole and threshold by gradient.
 
@@ -211,16 +229,7 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
         ("gamma_1_s", old.evaluator.gamma_1_s, new.evaluator.gamma_1_s), ("pole_1_s", old.pole_1_s, new.pole_1_s),
         (tau_key, getattr(old, tau_key), getattr(new, tau_key)))])
 
-    campaigns, compiles = {}, {}
-    start = time.perf_counter()
-    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
-        note(f"held-out campaign, FDD {label} tuning", progress)
-        with CompileCounter() as counter:
-            campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
-        compiles[label] = counter.count
-    t_val = time.perf_counter() - start
-    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
-                                         cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
+    campaigns, compiles, t_val, validation = held_out(cfg, tuned, deg_per_m, progress)
     meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
     notes = [f"Tuning of the {det} detector by gradient through the FDD over {n} stored plant histories of "
              f"{tr.duration_s} s (training seed {tr.seed}; plant simulated once in {t_plant:.1f} s). Objective: smooth "

@@ -18,13 +18,12 @@ import jax
 import numpy as np
 import pandas as pd
 
-from mcfdd import config, io, report
-from mcfdd.analysis import build, detection_tuning as dt, metrics
+from mcfdd import config, io
+from mcfdd.analysis import build, detection_tuning as dt, metrics, tuning
 from mcfdd.progress import bar, note
-from mcfdd.workflows.campaign import run_campaign
-from mcfdd.workflows.common import CompileCounter, dtype_of, load_bank
+from mcfdd.workflows.common import dtype_of, load_bank
 from mcfdd.workflows.compare import compare
-from mcfdd.workflows.tune import TuneResult, training_set
+from mcfdd.workflows.tune import TuneResult, held_out, training_set
 
 COUNTS = ("false_alarms", "missed", "detection_time_s")
 
@@ -93,7 +92,7 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
                                   f"{b['false_alarms']:.0f}, missed {b['missed']:.0f}", refresh=False)
             shown.update(1)
 
-        result = dt.tune(gap_and_grad, theta0, ts.iterations, ts.learning_rate, callback)
+        result = tuning.tune(gap_and_grad, theta0, ts.iterations, ts.learning_rate, callback)
     t_tune = time.perf_counter() - start
     best = dt.best_iterate(result)
     theta = result.thetas[best]
@@ -129,17 +128,7 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
         "detection_confirm_s")]
     parameters = pd.DataFrame([{"parameter": k, "before": x, "after": y} for k, x, y in rows])
 
-    campaigns, compiles = {}, {}
-    start = time.perf_counter()
-    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
-        note(f"held-out campaign, FDD {label} tuning", progress)
-        with CompileCounter() as counter:
-            campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
-        compiles[label] = counter.count
-    t_val = time.perf_counter() - start
-    deg_per_m = 180.0 / math.pi / r_arm
-    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
-                                         cfg.fdd.stall.identification)
+    campaigns, compiles, t_val, validation = held_out(cfg, tuned, 180.0 / math.pi / r_arm, progress)
     for label in ("before", "after"):
         for k, v in acceptance(campaigns[label].scenarios).items():
             validation.loc[validation["fdd"] == label, f"held_out_{k}"] = v
