@@ -53,14 +53,15 @@ THRESHOLDS = ("detection_tau", "detection_contrast")
 def names(loe: system.LoeParams, tune_pole: bool, confirmation: bool) -> tuple:
     """The parameters tuned for an FDD whose LOE part is ``loe``: the evaluator (alpha, beta, gamma),
     the pole (``tune_pole``), the detection thresholds, the excitation floor, its noise factor (if the
-    floor follows the noise) and the confirmation time (``confirmation``)."""
+    floor follows the noise) and the confirmation time (``confirmation``). A setting that is 0 (a
+    contrast, floor or confirmation turned off) stays off: it is not tuned (logarithms)."""
     out = ["alpha", "beta", "gamma_1_s"] + (["pole_1_s"] if tune_pole else []) + list(THRESHOLDS)
     out.append("excitation_floor")
     if loe.excitation_noise_factor is not None:
         out.append("excitation_noise_factor")
     if confirmation:
         out.append("detection_confirm_s")
-    return tuple(out)
+    return tuple(k for k in out if k == "alpha" or float(_value(loe, k)) > 0.0)
 
 
 def _value(loe: system.LoeParams, name: str) -> float:
@@ -70,16 +71,9 @@ def _value(loe: system.LoeParams, name: str) -> float:
 
 
 def initial(params: system.FddParams, tuned: tuple) -> dict:
-    """Logarithms of the current values of the ``tuned`` parameters (a dict, the optimiser's pytree).
-    A zero alpha starts from ``ALPHA_FLOOR * beta``; a zero floor or confirmation cannot be tuned on
-    logarithms (an error names it)."""
-    out = {}
-    for name in tuned:
-        value = float(_value(params.loe, name))
-        if not value > 0.0:
-            raise ValueError(f"fdd.loe {name} is {value}; detection tuning works on logarithms and needs it > 0")
-        out[name] = jnp.log(jnp.asarray(value, jnp.result_type(float)))
-    return out
+    """Logarithms of the current values of the ``tuned`` parameters (:func:`names`; a dict, the optimiser's
+    pytree). A zero alpha starts from ``ALPHA_FLOOR * beta``."""
+    return {name: jnp.log(jnp.asarray(float(_value(params.loe, name)), jnp.result_type(float))) for name in tuned}
 
 
 def natural(theta: dict) -> dict:

@@ -34,9 +34,11 @@ def tuned_fdd(fdd: config.FddConfig, values: dict, scale: float, deg: float) -> 
             "pole_1_s": "pole_1_s", "excitation_noise_factor": "excitation_noise_factor",
             "detection_confirm_s": "detection_confirm_s"}
     changes = {f"loe.{keys[k]}": v for k, v in values.items() if k in keys}
-    changes["loe.excitation_floor_deg"] = values["excitation_floor"] / deg
+    if "excitation_floor" in values:
+        changes["loe.excitation_floor_deg"] = values["excitation_floor"] / deg
     for k in dt.THRESHOLDS:
-        changes[f"loe.{k}"] = values[k] * scale
+        if k in values:
+            changes[f"loe.{k}"] = values[k] * scale
     return config.replace(fdd, {k: float(f"{v:.6g}") for k, v in changes.items()})
 
 
@@ -108,7 +110,7 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
     t_scan = time.perf_counter() - start
     values = dt.natural(theta)
     scan = pd.DataFrame({"scale": scales_all,
-                         **{k: np.asarray(values[k]) * scales_all for k in dt.THRESHOLDS},
+                         **{k: np.asarray(values[k]) * scales_all for k in dt.THRESHOLDS if k in values},
                          **{f"training_{k}": np.asarray(got[k]) for k in (*COUNTS, "tau_f", "tau_d")}})
     scan["pareto"] = dt.pareto(scan["training_false_alarms"], scan["training_missed"],
                                scan["training_detection_time_s"])
