@@ -76,6 +76,16 @@ def cmd_sensitivity(args) -> int:
     return 0
 
 
+def cmd_probability(args) -> int:
+    cfg = mcfdd.load_config(args.config, "campaign", flags.set_overrides(args.set))
+    out = io.out_dir("probability", args.config, args.out)
+    result = mcfdd.probability(cfg)
+    _written(result.save(out, f"Probability {Path(args.config).stem}"))
+    _print(result.lines())
+    print(f"summary: {out / 'summary.md'}")
+    return 0
+
+
 def cmd_compare(args) -> int:
     result = mcfdd.compare(args.campaign_a, args.campaign_b)
     out = Path(args.out) if args.out else Path("results") / f"compare-{'-vs-'.join(result.labels)}"
@@ -175,6 +185,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set sensitivity.samples=64 (repeatable)")
     _cluster_flags(p)
+    p = _command(sub, "probability", cmd_probability, "how rare an event of a campaign is: per run, per stratum and "
+                 "per flight hour by subset simulation, importance sampling or Monte Carlo ([probability] table)",
+                 "validation.toml", "results/probability-<config>")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a config key by its dotted path, e.g. --set probability.budget=20000 (repeatable)")
     p = _command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
                  "McNemar's exact test per outcome, detection-time differences", None,
                  "results/compare-<a>-vs-<b>")
