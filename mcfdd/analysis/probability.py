@@ -210,10 +210,10 @@ def truth_at(nu_bank: np.ndarray, fault, onset_s, args: StratumArgs) -> scoring.
     nu1 among those with nu2 = 1 (leakage), and the two models that bracket the fault; fault-free
     rows accept none (nearest 0), jammed ones none (nearest -1). ``onset_s``: of any fault (s).
     """
-    bank = np.asarray(nu_bank, float)
     leak, surface, disconnection, jam = (args.kind[i] > 0 for i in range(4))
     parametric = leak | surface | disconnection
     value = jnp.where(leak, fault.nu1, fault.nu2)
+    bank = np.asarray(nu_bank, value.dtype)
     members = jnp.where(leak, np.isclose(bank[:, 1], 1.0), np.isclose(bank[:, 0], 1.0))
     grid = jnp.where(leak, bank[:, 0], bank[:, 1])
     near = jnp.argmin(jnp.where(members, jnp.abs(grid - value), jnp.inf))
@@ -301,7 +301,8 @@ def manoeuvre_codes(axes) -> tuple[int, ...]:
 
 def noise_dims(model) -> tuple[int, int]:
     """(normals at the start, normals per step) of the plant model's runs."""
-    return closed_loop.noise_dims(model)
+    plant = closed_loop.loop(model)
+    return plant.init_noise_dim, plant.noise_dim
 
 
 def histories(problem: Problem, u, args: StratumArgs):
