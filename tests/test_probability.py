@@ -110,7 +110,7 @@ def test_truth_matches_true_model_on_dense_size_sweeps():
 
 def test_run_normals_is_the_run_its_key_draws():
     """Given the normals a key draws, a run is that key's run: plant and FDD histories equal to the bit."""
-    cfg = small(8, duration=0.5)
+    cfg = small(8, duration=2.5)
     with precision(cfg.campaign.precision):
         cols, _ = build.design(cfg)
         problem, _ = workflow.problem_of(cfg)
