@@ -60,6 +60,7 @@ class ProbabilityResult:
     meta: dict
     problem: normal_space.Problem | None = None
     args: list | None = None
+    precision: str = "float32"
 
     def lines(self) -> list[str]:
         """What the terminal shows."""
@@ -68,7 +69,8 @@ class ProbabilityResult:
     def replay(self, i: int):
         """Time histories (PlantOutputs, FddOutputs; leading axis steps) of failure point ``i``."""
         stratum = int(self.failures["stratum"].iloc[i])
-        return normal_space.histories(self.problem, self.failure_points[i], self.args[stratum])
+        with precision(self.precision):
+            return jax.device_get(normal_space.histories(self.problem, self.failure_points[i], self.args[stratum]))
 
     def save(self, out, title: str = "Probability") -> list[Path]:
         """Write strata.parquet, levels.parquet, failures.parquet, failure_points.npy and summary.md."""
@@ -243,7 +245,8 @@ def _probability(cfg: config.CampaignConfig, progress: bool) -> ProbabilityResul
     meta = io.provenance(config.to_json(cfg), seed, models=list(names), event=p.event, method=p.method)
     failures = pd.DataFrame(failure_rows)
     return ProbabilityResult(p.event, p.method, overall, groups, rate, table, pd.DataFrame(level_rows), failures,
-                             np.asarray(points).reshape(len(points), space.d), notes, meta, problem, args_list)
+                             np.asarray(points).reshape(len(points), space.d), notes, meta, problem, args_list,
+                             c.precision)
 
 
 def _must_share(cfg: config.CampaignConfig, problem: normal_space.Problem, stratum: dict) -> float:
