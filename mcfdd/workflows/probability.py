@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
@@ -178,8 +179,10 @@ def problem_of(cfg: config.CampaignConfig) -> tuple[normal_space.Problem, tuple]
     r_arm = model.actuator.r_arm_m
     space = normal_space.Space.of(cfg.space.axes, cfg.plant.aircraft.max_mach,
                                    normal_space.noise_dims(model), c.n_steps)
-    problem = normal_space.Problem(model, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation,
-                                                                                                   r_arm),
+    # the limit state closes over plant and FDD: their NumPy leaves become JAX arrays (traced indexing)
+    model, fdd_params = jax.tree.map(lambda x: jnp.asarray(x) if isinstance(x, np.ndarray) else x,
+                                     (model, build.fdd_params(cfg.fdd, bank, r_arm)))
+    problem = normal_space.Problem(model, fdd_params, build.settings(cfg.evaluation, r_arm),
                                     np.asarray(bank.nu), space, normal_space.EVENTS[p.event][1], c.dt_s, c.substeps,
                                     normal_space.manoeuvre_codes(cfg.space.axes))
     return problem, names
