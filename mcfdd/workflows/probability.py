@@ -140,9 +140,29 @@ def _scaled(e: rare.Estimate, c: float) -> rare.Estimate:
 
 
 def _combined(estimates, confidence: float) -> rare.Estimate:
-    """Equal shares of the strata (the campaign's design)."""
+    """Equal shares of the strata (the campaign's design); one stratum is its own estimate."""
+    if len(estimates) == 1:
+        return estimates[0]
     kind = "delta" if all(e.reached and e.hits > 0 and np.isfinite(e.cov) for e in estimates) else "union"
     return rare.combine(estimates, np.full(len(estimates), 1.0 / len(estimates)), confidence, kind)
+
+
+def per_flight_hour(estimates, weights, scored_s: float, confidence: float) -> rare.Estimate:
+    """lambda = sum_s w_s p_s 3600 / T_scored (:func:`mcfdd.analysis.rare.per_flight_hour`); one
+    stratum: its estimate and interval scaled."""
+    if len(estimates) == 1:
+        return dataclasses.replace(_scaled(estimates[0], rare.exposure.SECONDS_PER_HOUR / scored_s),
+                                   method="per_flight_hour")
+    kind = "delta" if all(e.reached and e.hits > 0 and np.isfinite(e.cov) for e in estimates) else "union"
+    return rare.per_flight_hour(estimates, weights, scored_s, confidence, kind)
+
+
+def acting(stratum: dict, cols: dict) -> dict:
+    """The columns of a stratum's failure points that act on its runs: the size of its own fault kind,
+    the onset of a fault."""
+    kind = stratum.get("fault_kind")
+    return {k: v for k, v in cols.items() if not (columns.COLUMN[k].size_of not in ("", kind)
+                                                  or (k == "fault_onset_s" and kind == "none"))}
 
 
 def check_event(cfg: config.CampaignConfig, fault_kinds) -> None:
@@ -228,7 +248,8 @@ def _probability(cfg: config.CampaignConfig, progress: bool) -> ProbabilityResul
                             "lo": est.interval[0], "hi": est.interval[1], "simulations": spent, "hits": est.hits,
                             "runs": len(runs), "levels": len(est.levels), "reached": est.reached})
         if len(est.failure_points):
-            cols = normal_space.columns_at(space, est.failure_points, args)
+            cols = acting({"fault_kind": cfg.values("fault_kind")[0], **stratum},
+                          normal_space.columns_at(space, est.failure_points, args))
             for i, m in enumerate(est.failure_margins):
                 failure_rows.append({"stratum": s, **stratum, **{k: v[i] for k, v in cols.items()}, "margin": m,
                                      "beta": float(np.linalg.norm(est.failure_points[i])), "point": len(points)})
@@ -242,8 +263,7 @@ def _probability(cfg: config.CampaignConfig, progress: bool) -> ProbabilityResul
     if fault_kinds == ("none",):
         weights = exposure_weights(cfg, strata)
         table["exposure_weight"] = weights
-        kind = "delta" if all(e.reached and e.hits > 0 and np.isfinite(e.cov) for e in estimates) else "union"
-        rate = rare.per_flight_hour(estimates, weights, scored_s, p.confidence, kind)
+        rate = per_flight_hour(estimates, weights, scored_s, p.confidence)
     notes = _notes(cfg, space, scored_s, p, margin, flag)
     meta = io.provenance(config.to_json(cfg), seed, models=list(names), event=p.event, method=p.method)
     failures = pd.DataFrame(failure_rows)
