@@ -263,3 +263,17 @@ def test_subset_simulation_agrees_with_monte_carlo_and_repeats_to_the_bit(tmp_pa
     assert (failures["margin"] > 0).all() and len(failures) == len(subset.failure_points)
     plant, fdd = subset.replay(0)  # a failure point replayed: its histories
     assert plant.u_m.shape == (cfg.campaign.n_steps,)
+
+
+def test_missed_detection_is_conditional_on_the_runs_that_must_be_detected():
+    data = tomllib.loads(SMALL.format(n=8) + LOWERED + FAST.replace('"false_alarm"', '"missed_detection"'))
+    data["campaign"]["duration_s"] = 2.5
+    data["space"].update(fault_kind="leakage", manoeuvre_kind="doublet", leakage_size=[0.0, 0.3])
+    data["probability"].update(method="mc", samples=200, budget=200)
+    cfg = config.parse(config.CampaignConfig, data)
+    result = mcfdd.probability(cfg, progress=False)
+    must = normal_space.must_fraction(workflow.problem_of(cfg)[0].nu_bank, "leakage", 0.0, 0.3)
+    assert 0.0 < must < 1.0  # small leaks are nearest to the nominal model: not must-detect
+    assert result.rate is None and set(result.groups) == {"leakage"}
+    assert result.overall.estimate == pytest.approx(result.overall.hits / 200 / must)
+    assert result.overall.interval[1] == pytest.approx(result.strata["hi"].iloc[0])

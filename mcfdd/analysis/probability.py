@@ -93,7 +93,7 @@ class Space:
 class StratumArgs(NamedTuple):
     """A stratum's fixed values, traced: the scenario with its categorical and constant columns set
     (continuous ones at their defaults), the fault kind as flags (leakage, surface damage,
-    disconnection, jamming), the fault size and onset the stratum gives (s), its altitude (m)."""
+    disconnection, jamming), and the fault size and onset (s) the stratum gives."""
 
     base: closed_loop.Scenario
     kind: jnp.ndarray
@@ -284,7 +284,7 @@ def campaign_normals(key, n_steps: int, dims: tuple[int, int]):
     return jax.random.normal(key, (dims[0],)), steps
 
 
-def must_fraction(nu_bank: np.ndarray, kind: str, lo: float, hi: float, points: int = 200_001) -> float:
+def must_fraction(nu_bank: np.ndarray, kind: str, lo: float, hi: float, points: int = 20_001) -> float:
     """The share of fault sizes uniform on [lo, hi] that must be detected (nearest model not the
     nominal one), on ``points`` equally spaced sizes (exact for lo = hi)."""
     sizes = np.linspace(lo, hi, points if hi > lo else 1)

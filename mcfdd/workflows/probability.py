@@ -295,6 +295,7 @@ def _notes(cfg, space, scored_s: float, p, margin: str, flag: str) -> list[str]:
         f"{space.d} coordinates.",
         f"Per flight hour: lambda = sum_s w_s p_s 3600 / T_scored with T_scored = duration_s - settle_s = "
         f"{scored_s:g} s, the exposure weights w_s of [probability.exposure] (turbulence shares from MIL-F-8785C "
-        f"3.7.2.1; manoeuvre families in equal shares unless set), flights and scored windows taken as independent, "
-        f"and the model valid over the space.",
+        f"3.7.2.1; manoeuvre families in equal shares unless set), renormalised over the space's strata: a rate per "
+        f"hour flown in the space's conditions. Flights and scored windows are taken as independent and the model "
+        f"as valid over the space; the continuous axes (envelope, servo parameters) are averaged over their ranges.",
     ]
