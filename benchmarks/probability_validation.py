@@ -1,17 +1,19 @@
 """P(false alarm) of the validation FDD by subset simulation, and a lowered threshold against plain Monte Carlo.
 
-1. ``--check``: the validation space with ``fdd.loe.detection_tau`` lowered (``--lowered``), where a
-   false alarm is common enough for plain Monte Carlo, estimated by subset simulation and by plain
-   Monte Carlo of ``--mc`` runs; both estimates, both intervals and whether each holds the other.
-2. The validation FDD as configured: subset simulation per stratum to the target c.o.v. or the
-   budget; the simulations spent against the runs plain Monte Carlo would need for the same c.o.v.,
-   (1 - p) / (p cov^2).
+1. ``--check``: the validation space with the FDD's thresholds lowered (``--lowered KEY=VALUE``, by
+   default ``fdd.loe.detection_contrast=0.03``), where a false alarm is common enough for plain Monte
+   Carlo, estimated by subset simulation and by plain Monte Carlo of ``--mc`` runs; both estimates,
+   both intervals and whether each holds the other.
+2. Otherwise the validation FDD as configured: subset simulation per stratum to the target c.o.v.
+   or the budget, for each of ``--seeds``; the simulations spent against the runs plain Monte Carlo
+   would need for the same c.o.v., (1 - p) / (p cov^2).
 
 Horizons, strata and budgets are reduced by flags (``--duration``, ``--manoeuvre``, ``--turbulence``)
 so a run takes minutes on a laptop; every number printed says what was run.
 
     nice -n 10 python benchmarks/probability_validation.py [--duration 20] [--manoeuvre doublet]
-        [--turbulence moderate] [--samples 500] [--budget 20000] [--check --lowered 0.03 --mc 20000]
+        [--turbulence moderate] [--samples 500] [--budget 20000] [--seeds 5 6]
+        [--check --lowered fdd.loe.detection_contrast=0.03 --mc 4000]
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ def reduced(args, **extra) -> config.CampaignConfig:
     cfg = mcfdd.load_config(ROOT / "configs" / "validation.toml", "campaign")
     changes = {"campaign.duration_s": args.duration, "probability.samples": args.samples,
                "probability.budget": args.budget, "probability.target_cov": args.target_cov,
-               "probability.chunk": args.chunk, "probability.seed": args.seed}
+               "probability.chunk": args.chunk, "probability.seed": args.seeds[0]}
     if args.manoeuvre:
         changes["space.manoeuvre_kind"] = args.manoeuvre
     if args.turbulence:
@@ -63,27 +65,29 @@ def main():
     p.add_argument("--budget", type=int, default=20000)
     p.add_argument("--target-cov", type=float, default=0.3)
     p.add_argument("--chunk", type=int, default=250)
-    p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--seeds", type=int, nargs="+", default=[5])
     p.add_argument("--check", action="store_true", help="also the lowered threshold against plain Monte Carlo")
-    p.add_argument("--lowered", type=float, default=0.03, help="fdd.loe.detection_tau of the check")
+    p.add_argument("--lowered", nargs="+", default=["fdd.loe.detection_contrast=0.03"], metavar="KEY=VALUE",
+                   help="the FDD keys lowered for the check")
     p.add_argument("--mc", type=int, default=20000, help="plain Monte Carlo runs of the check")
     args = p.parse_args()
     if args.check:
-        lowered = {"fdd.loe.detection_tau": args.lowered}
+        lowered = {k: float(v) for k, v in (item.split("=") for item in args.lowered)}
         start = time.perf_counter()
         subset = mcfdd.probability(reduced(args, **lowered), progress=False)
-        show(f"lowered detection_tau {args.lowered}, subset simulation", subset, time.perf_counter() - start)
+        show(f"lowered {lowered}, subset simulation", subset, time.perf_counter() - start)
         start = time.perf_counter()
         mc = mcfdd.probability(reduced(args, **lowered, **{"probability.method": "mc", "probability.samples": args.mc,
                                                              "probability.budget": args.mc}), progress=False)
-        show(f"lowered detection_tau {args.lowered}, plain Monte Carlo", mc, time.perf_counter() - start)
+        show(f"lowered {lowered}, plain Monte Carlo", mc, time.perf_counter() - start)
         a, b = subset.overall, mc.overall
         print(f"  subset estimate in the Monte Carlo interval: {b.interval[0] <= a.estimate <= b.interval[1]}; "
               f"Monte Carlo estimate in the subset interval: {a.interval[0] <= b.estimate <= a.interval[1]}")
-    start = time.perf_counter()
-    result = mcfdd.probability(reduced(args), progress=True)
-    show("validation FDD, subset simulation", result, time.perf_counter() - start)
-
+        return
+    for seed in args.seeds:
+        start = time.perf_counter()
+        result = mcfdd.probability(reduced(args, **{"probability.seed": seed}), progress=True)
+        show(f"validation FDD, subset simulation, seed {seed}", result, time.perf_counter() - start)
 
 if __name__ == "__main__":
     main()

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 import mcfdd
-from helpers import SMALL
+from helpers import SMALL, compiles
 from mcfdd import columns, config
 from mcfdd.analysis import build, campaign, probability as normal_space, rare, scenarios, simulate
 from mcfdd.workflows import probability as workflow
@@ -256,6 +256,8 @@ def test_subset_simulation_agrees_with_monte_carlo_and_repeats_to_the_bit(tmp_pa
     lo, hi = mc.overall.interval
     assert lo <= subset.overall.estimate <= hi
     assert subset.overall.interval[0] <= mc.overall.estimate <= subset.overall.interval[1]
+    importance = mcfdd.probability(config.replace(cfg, {"probability.method": "importance"}), progress=False)
+    assert importance.overall.interval[0] <= mc.overall.estimate <= importance.overall.interval[1]
     assert subset.rate.estimate == pytest.approx(subset.overall.estimate * 3600 / (1.2 - 0.5))
     files = subset.save(tmp_path)
     assert {p.name for p in files} >= {"strata.parquet", "failures.parquet", "summary.md"}
@@ -277,3 +279,12 @@ def test_missed_detection_is_conditional_on_the_runs_that_must_be_detected():
     assert result.rate is None and set(result.groups) == {"leakage"}
     assert result.overall.estimate == pytest.approx(result.overall.hits / 200 / must)
     assert result.overall.interval[1] == pytest.approx(result.strata["hi"].iloc[0])
+
+
+def test_strata_share_one_compiled_program():
+    one = config.replace(tiny(), {"probability.samples": 100, "probability.budget": 100})
+    two = config.replace(one, {"space.turbulence": ["light", "moderate"]})
+    mcfdd.probability(one, progress=False)  # what does not depend on the limit state is compiled now
+    per_run = compiles(lambda: mcfdd.probability(one, progress=False))  # a new g: its programs again
+    assert per_run >= 1
+    assert compiles(lambda: mcfdd.probability(two, progress=False)) == per_run
