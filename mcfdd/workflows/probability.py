@@ -256,9 +256,9 @@ def _probability(cfg: config.CampaignConfig, progress: bool) -> ProbabilityResul
                 points.append(np.asarray(est.failure_points[i]))
     table = pd.DataFrame(strata_rows)
     overall = _combined(estimates, p.confidence)
-    groups = ({k: _combined([e for e, s in zip(estimates, strata) if s.get("fault_kind", k) == k], p.confidence)
-               for k in dict.fromkeys(s.get("fault_kind", "") for s in strata)}
-              if p.event == "missed_detection" else {"all": overall})
+    kinds = [s.get("fault_kind", cfg.values("fault_kind")[0]) for s in strata]
+    groups = ({k: _combined([e for e, kind in zip(estimates, kinds) if kind == k], p.confidence)
+               for k in dict.fromkeys(kinds)} if p.event == "missed_detection" else {"all": overall})
     rate, scored_s = None, c.duration_s - cfg.evaluation.settle_s
     if fault_kinds == ("none",):
         weights = exposure_weights(cfg, strata)
