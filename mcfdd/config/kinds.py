@@ -263,7 +263,9 @@ class CampaignConfig(Scored):
 class SearchSettings(Section):
     """Multi-start projected gradient search of one detection bound, eqs. (26)-(27)."""
 
-    detector: choice(("stall", "loe")) = spec("stall")
+    detector: choice(("stall", "loe", "loe_detection")) = spec(
+        "stall", doc="stall: the stall detector's theta; loe: the LOE bank's ratios theta_i / ||u|| "
+        "(identification); loe_detection: the LOE detection level's signed statistic (its sign is the verdict)")
     bound: choice(("free", "detect")) = spec(
         "free", doc="free: tau_f of eq. (26), maximised over fault-free runs; detect: tau_d of eq. (27), minimised")
     screening: int = spec(64, lo=1, hi=100_000, doc="Sobol points screened; the worst ones start the gradient search")
@@ -271,7 +273,10 @@ class SearchSettings(Section):
     iterations: int = spec(20, lo=1, hi=10_000, doc="gradient steps per start")
     learning_rate: float = spec(0.05, lo=0.0, lo_open=True, hi=1.0, doc="Adam step in the unit cube")
     temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
-                              doc="smooth maximum over time, in log units of the statistic (0.05: about 5 %)")
+                              doc="smooth maximum over time, in log units of the statistic (0.05: about 5 %); "
+                                  "for loe_detection in the statistic's units (theta_0 / ||u||)")
+    min_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="only runs whose peak hinge-load fraction "
+                                    "(peak_load_fraction) reaches this count (detect: the faults an FDD must see)")
 
 
 class WorstCaseConfig(Scored):
@@ -291,7 +296,7 @@ class WorstCaseConfig(Scored):
         if s.bound == "free" and set(kinds) != {"none"}:
             raise Invalid("space.fault_kind", f"{list(kinds)}; the false-alarm bound (search.bound = 'free') is "
                                               f"taken over fault-free runs, so fault_kind must be \"none\"")
-        if (s.detector, s.bound) == ("loe", "detect") and not set(kinds) <= set(columns.PARAMETRIC):
+        if s.detector != "stall" and s.bound == "detect" and not set(kinds) <= set(columns.PARAMETRIC):
             raise Invalid("space.fault_kind", f"{list(kinds)}; the LOE detection bound needs parametric faults, "
                                               f"one of {', '.join(columns.PARAMETRIC)}")
         self.check_space(CampaignSettings(duration_s=self.simulation.duration_s), "search")
@@ -309,6 +314,23 @@ class TuneSettings(Section):
     threshold_candidates: int = spec(32, lo=2, hi=1000,
                                      doc="thresholds compared on the training set when the gap stays negative")
     tune_pole: bool = spec(True, doc="tune the filter pole a besides alpha, beta, gamma")
+    level: choice(("identification", "detection")) = spec(
+        "identification", doc="LOE bank: identification tunes the evaluator and pole for the signature's gap and "
+        "places tau; detection tunes the detection level (detection_tau, detection_contrast, excitation floor and "
+        "noise factor, evaluator, pole) on the detection monitor's margins")
+    must_detect: choice(("separable", "all")) = spec(
+        "separable", doc="detection level: tau_d over the faulty runs that must be detected and are separable "
+        "(the fault's gain distance at the peak load above the uncertainty's), or over all of them")
+    must_detect_kinds: tuple[choice(columns.PARAMETRIC), ...] = spec(
+        (), doc="detection level: tau_d only over these fault kinds (empty: every parametric kind)")
+    min_peak_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="detection level: tau_d only over runs whose "
+                                         "peak hinge-load fraction after the onset is at least this")
+    tune_confirmation: bool = spec(False, doc="detection level: tune detection_confirm_s too")
+    scan_scales: tuple[float, float] = spec((0.5, 2.5), doc="detection level: the detection thresholds are "
+                                            "scaled by threshold_candidates factors spaced geometrically over "
+                                            "this range, each scored on the training set")
+    safety: float = spec(1.1, lo=1.0, hi=10.0, doc="detection level: the chosen factor is the smallest from "
+                         "which no candidate alarms on the training set, times this")
 
 
 class TuneConfig(Scored):
@@ -328,10 +350,12 @@ class TuneConfig(Scored):
         if self.validation.precision != self.training.precision:
             raise Invalid("validation.precision", f"{self.validation.precision!r} differs from training.precision "
                                                   f"{self.training.precision!r}")
-        if self.plant.aircraft.model != "roll_axis":
-            raise Invalid("plant.aircraft.model", f"{self.plant.aircraft.model!r}; mcfdd tune replays stored "
-                                                  f"histories at each run's initial flight point, so it supports "
-                                                  f"\"roll_axis\" only")
+        t = self.tune
+        if t.level == "detection" and t.detector != "loe":
+            raise Invalid("tune.level", f"'detection' is the LOE bank's level; tune.detector is {t.detector!r}")
+        lo, hi = t.scan_scales
+        if not 0.0 < lo < hi:
+            raise Invalid("tune.scan_scales", f"{[lo, hi]}; expected 0 < low < high")
         for split in ("training", "validation"):
             self.check_space(getattr(self, split), split)
 
