@@ -38,7 +38,7 @@ def test_run_sections_own_exactly_the_table_columns():
     owners = {"run": config.RunConfig, "fault": config.FaultConfig, "manoeuvre": config.ManoeuvreConfig}
     owned = {(c.owner[0], c.owner[1]) for c in columns.TABLE}
     declared = {(section, key) for section, cls in owners.items() for key in cls.model_fields
-                if key not in ("name", "seed", "fault", "manoeuvre")}
+                if key not in ("name", "seed", "index", "fault", "manoeuvre")}  # seed, index: the run's key
     assert owned == declared
     assert set(config.SpaceConfig.model_fields) == {c.name for c in columns.AXES}
     assert "fault_size" not in config.SpaceConfig.model_fields and "leakage_size" in config.SpaceConfig.model_fields
@@ -99,7 +99,7 @@ def test_both_aircraft_models_prepare_runs_with_the_scaled_constants():
                                  np.float64)
     for name in ("roll_axis", "rcam"):
         model = build.plant_model(config.PlantConfig(aircraft=config.AircraftConfig(model=name)))
-        params = closed_loop.prepare(model, scen)
+        params = closed_loop.loop(model).prepare(model, scen, closed_loop.DT_S)
         assert float(params.actuator.kci_m_s_a) == pytest.approx(model.actuator.kci_m_s_a * 1.1, rel=1e-15)
         assert float(params.actuator.kd_n_s2_m2) == pytest.approx(model.actuator.kd_n_s2_m2 * 0.7, rel=1e-15)
         if name == "rcam":

@@ -349,8 +349,3 @@ def test_roll_axis_refuses_a_full_aircraft_manoeuvre_in_one_line(tmp_path, capsy
     err = capsys.readouterr().err
     assert "runs[0].manoeuvre.kind" in err and "rcam" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
-
-
-def test_tuning_refuses_the_full_aircraft():
-    with pytest.raises(config.ConfigError, match="plant.aircraft.model.*roll_axis"):
-        config.parse(config.TuneConfig, {"plant": {"aircraft": {"model": "rcam"}}, "validation": {"seed": 1}})
