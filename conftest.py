@@ -13,6 +13,8 @@ commands the tests run in subprocesses.
 import os
 import re
 
+import pytest
+
 FLAG = "--xla_force_host_platform_device_count"
 TEST_DEVICES = 2
 os.environ["XLA_FLAGS"] = (re.sub(rf"{FLAG}=\d+", "", os.environ.get("XLA_FLAGS", "")) +
@@ -23,3 +25,13 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _compiled_programs_freed_after_each_module():
+    """One process runs the whole suite: JAX's caches of traced and compiled programs are emptied after each
+    test module, so their memory does not grow with the number of modules (a module that counts compilations
+    counts within itself)."""
+    yield
+    jax.clear_caches()
