@@ -27,7 +27,6 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
-
 @pytest.fixture(autouse=True, scope="module")
 def _compiled_programs_freed_after_each_module():
     """One process runs the whole suite: JAX's caches of traced and compiled programs are emptied after each
