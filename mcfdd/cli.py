@@ -76,6 +76,14 @@ def cmd_sensitivity(args) -> int:
     return 0
 
 
+def cmd_replay(args) -> int:
+    out = io.out_dir("replay", args.campaign_dir, args.out)
+    result = mcfdd.replay(args.campaign_dir, flags.scenario_ids(args.scenarios))
+    _written(result.save(out))
+    _print(result.lines())
+    return 0
+
+
 def cmd_compare(args) -> int:
     result = mcfdd.compare(args.campaign_a, args.campaign_b)
     out = Path(args.out) if args.out else Path("results") / f"compare-{'-vs-'.join(result.labels)}"
@@ -180,6 +188,12 @@ def build_parser() -> argparse.ArgumentParser:
                  "results/compare-<a>-vs-<b>")
     p.add_argument("campaign_a", metavar="DIR_A", help="folder of the first campaign (mcfdd campaign --out)")
     p.add_argument("campaign_b", metavar="DIR_B", help="folder of the second campaign, same space and seed")
+    p = _command(sub, "replay", cmd_replay, "named scenarios of a finished or interrupted campaign again, as time "
+                 "histories and a figure per run (outcomes equal to the campaign's rows)", None,
+                 "results/replay-<campaign folder>")
+    p.add_argument("campaign_dir", metavar="CAMPAIGN_DIR", help="folder of the campaign (mcfdd campaign --out) or "
+                   "of a sensitivity analysis")
+    p.add_argument("--scenarios", required=True, metavar="IDS", help="comma-separated scenario ids, e.g. 481,3524")
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
     p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,

@@ -176,7 +176,9 @@ def _resolved(cfg: config.CampaignConfig) -> dict:
 
 
 def _state_text(cfg: config.CampaignConfig) -> str:
-    return json.dumps(_resolved(cfg), indent=1, sort_keys=True)
+    """campaign.json: the resolved config in its own order (the order of [space]'s axes orders the design's
+    columns, so the scenarios are rebuilt from this file alone, :mod:`mcfdd.workflows.replay`)."""
+    return json.dumps(_resolved(cfg), indent=1)
 
 
 @contextlib.contextmanager
@@ -229,7 +231,8 @@ class CampaignResult:
         summary: FAR, MDR, identification and stall rates with Clopper-Pearson 95 % intervals,
             overall and per stratum (columns ``stratum`` and ``label``).
         confusion: true nearest model (rows) against decided model (columns), counts.
-        gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector.
+        gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector, with the scenario of each
+            (in ``gaps.parquet`` also the command replaying it: ``tau_f_replay``, ``tau_d_replay``).
         detectability: FAR and MDR per fault class, dynamic-pressure bin and peak-load-fraction
             bin, each cell marked separable under the campaign's uncertainty or not.
         meta: provenance (resolved config JSON, seed, version, git revision, model names).
@@ -240,10 +243,10 @@ class CampaignResult:
     """
 
     def __init__(self, cfg: config.CampaignConfig, scenarios, parts: np.ndarray, models, meta: dict,
-                 simulated: int, workers=None):
+                 simulated: int, workers=None, plan: build.DesignPlan | None = None):
         self.config, self.scenarios, self.models, self.meta, self.simulated = cfg, scenarios, tuple(models), meta, \
             simulated
-        self._parts = parts
+        self._parts, self._plan = parts, plan
         self.workers = workers
         deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
         self.summary = report.summary(scenarios)
@@ -263,6 +266,13 @@ class CampaignResult:
                                                    self.config.campaign.seed if s.seed is None else s.seed),
                              tables.witnesses(self.scenarios))
         return self._drivers
+
+    def replay(self, ids, progress: bool = True):
+        """Scenarios ``ids`` of this campaign simulated again, with time histories: a
+        :class:`mcfdd.workflows.replay.ReplayResult` (:func:`mcfdd.replay` of its folder)."""
+        from mcfdd.workflows import replay  # deferred: the campaign does not need it
+
+        return replay.replay_rows(self.config, self.scenarios, ids, self._plan, progress)
 
     def overall(self) -> dict:
         """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
@@ -332,13 +342,13 @@ class CampaignResult:
                                           out / "scenarios" / _part_name(int(ids[rows][0])), self.meta))
         written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
         written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
-        written.append(io.write_table(self.gaps, out / "gaps.parquet", self.meta))
+        written.append(io.write_table(report.with_replay(self.gaps, out), out / "gaps.parquet", self.meta))
         written.append(io.write_table(self.detectability, out / "detectability.parquet", self.meta))
         written.append(io.write_text(out / "summary.md", report.markdown(title, self.summary, self.confusion,
-                                                                         self.gaps, self.meta)
+                                                                         self.gaps, self.meta, out)
                                      + report.detectability_markdown(self.detectability, self.scenarios)
                                      + report.stall_scoring_markdown(self.scenarios)
-                                     + report.drivers_markdown(*self.drivers())
+                                     + report.drivers_markdown(*self.drivers(), folder=out)
                                      + report.figures_markdown(drawn, left_out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
@@ -538,7 +548,7 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile
     table = pd.concat(frames, ignore_index=True)
     order = np.argsort(table["scenario_id"].to_numpy(), kind="stable")
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
-                            len(todo), worker_table(records, c.n_steps))
+                            len(todo), worker_table(records, c.n_steps), setup.plan)
     if out is not None:
         with _writing(out, "every scenario part is written; make room and continue with --resume"):
             result.save(out, title)

@@ -34,12 +34,13 @@ def run_histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, f
 
 
 def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_cfg: config.FddConfig, table: dict,
-              run_names, progress: bool = True, seeds=None):
+              run_names, progress: bool = True, seeds=None, keys=None):
     """Simulate the runs of a scenario table with plant and FDD in one batch.
 
     Runs are paired: each draws its turbulence and sensor noise from ``run_keys(seed, [0])`` with
     its entry of ``seeds`` (None, or no ``seeds`` at all, for ``sim.seed``), so runs of one seed
-    see the same random numbers and differ only by their parameters.
+    see the same random numbers and differ only by their parameters. ``keys`` (one JAX key per
+    run, e.g. a campaign's scenario keys) replaces the seeds' keys.
 
     Returns (tidy DataFrame of time histories, LPV model names).
     """
@@ -50,9 +51,10 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         fdd_params = build.fdd_params(fdd_cfg, bank, model.actuator.r_arm_m)
         scenarios = to_scenario(table, dtype)
         kinds = batch.kinds_in(scenarios.manoeuvre.kind)
-        seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
-        unique, inverse = np.unique(seeds, return_inverse=True)
-        keys = jnp.concatenate([run_keys(int(s), [0]) for s in unique])[inverse]
+        if keys is None:
+            seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
+            unique, inverse = np.unique(seeds, return_inverse=True)
+            keys = jnp.concatenate([run_keys(int(s), [0]) for s in unique])[inverse]
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",
              progress)
         start = time.perf_counter()
@@ -79,6 +81,8 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     for i in range(len(names)):
         columns[f"r_{i}"] = fdd.r[..., i]
         columns[f"theta_{i}"] = fdd.theta[..., i]
+        columns[f"ratio_{i}"] = np.where(fdd.excited, fdd.theta[..., i] / np.where(fdd.excited, fdd.theta_u, 1.0),
+                                         np.nan)
         columns[f"iota_{i}"] = fdd.iota[..., i]
     eta = fdd.eta_signal if fdd_cfg.stall.identification == "signal" else fdd.eta_model
     columns.update({
@@ -112,7 +116,7 @@ class Histories:
 
     def to_pandas(self):
         """Tidy table, one row per (run, sample): ``run``, ``t_s`` and one column per signal (units in the names;
-        per filter i ``r_i``, ``theta_i``, ``iota_i``)."""
+        per filter i ``r_i``, ``theta_i``, ``iota_i`` and ``ratio_i`` = theta_i / ||u|| while excited, else nan)."""
         return self._frame
 
     def summary(self):
