@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 
 import mcfdd
+from helpers import SMALL
 from mcfdd import cli, config
 from mcfdd.workflows import replay as replay_wf
-from helpers import SMALL
 
 N = 160  # three chunks of 64 on one device
 
