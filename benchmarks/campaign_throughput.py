@@ -77,9 +77,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from mcfdd import config, io  # noqa: E402
-from mcfdd.analysis import campaign, noise, simulate  # noqa: E402
+from mcfdd.analysis import campaign, noise, scoring, simulate  # noqa: E402
 from mcfdd.compute import once  # noqa: E402
-from mcfdd.fdd import lpv, system  # noqa: E402
+from mcfdd.fdd import lpv  # noqa: E402
 from mcfdd.plant import closed_loop  # noqa: E402
 from mcfdd.workflows import campaign as campaign_runner  # noqa: E402
 from mcfdd.workflows.common import CompileCounter, precision as precision_context  # noqa: E402
@@ -424,25 +424,29 @@ def peer_functions(p: Problem, n_steps: int):
     """Jitted pieces of the Python-loop peer: init, one batched step (noise drawn inside), finalize."""
     kinds, dt_s, substeps = p.setup.kinds, p.c.dt_s, p.c.substeps
 
-    def init_one(model, fdd_params, scenario, key):
-        return campaign.init_one(model, fdd_params, scenario, key, dt_s)
+    def observer(settings, truth, fdd_params):
+        monitor = scoring.monitors(settings, truth, fdd_params)
+        return monitor, scoring.observer(settings, truth, monitor)
 
-    def step_one(fdd_params, settings, params, scenario, truth, carry, key, k):
-        normals = noise.normals(noise.key_words(key), k, closed_loop.noise_dims(params)[1], jnp.result_type(float))
-        return campaign.step_one(params, fdd_params, settings, scenario, truth, carry, k, normals, dt_s, substeps,
-                                 kinds)[0]
+    def init_one(model, fdd_params, settings, scenario, truth, key):
+        return simulate.start(model, fdd_params, scenario, key, dt_s, observer(settings, truth, fdd_params)[1])
 
-    def finalize_one(settings, red):
-        return campaign.finalize(settings, red, n_steps * dt_s)
+    def step_one(model, fdd_params, settings, params, truth, carry, key, k):
+        normals = noise.normals(noise.key_words(key), k, closed_loop.loop(model).noise_dim, jnp.result_type(float))
+        return simulate.advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds,
+                                observer(settings, truth, fdd_params)[1])[0]
+
+    def finalize_one(fdd_params, settings, truth, seen):
+        return scoring.finalize(settings, observer(settings, truth, fdd_params)[0], seen, n_steps * dt_s)
 
     def split(fn, batched):
         """Parameters are arguments (not closed over), as in run_batch, so ``compute.once`` stays in effect."""
         return partial(campaign.on_devices, jax.jit(jax.vmap(fn, in_axes=tuple(0 if b else None for b in batched))),
                        batched=batched)
 
-    init = split(init_one, (False, False, True, True))
-    step = split(step_one, (False, False, True, True, True, True, True, False))
-    finalize = split(finalize_one, (False, True))
+    init = split(init_one, (False, False, False, True, True, True))
+    step = split(step_one, (False, False, False, True, True, True, True, False))
+    finalize = split(finalize_one, (False, False, True, True))
     return init, step, finalize
 
 
@@ -451,10 +455,10 @@ def run_peer(p: Problem, fns, ids, n_steps: int):
     init, step, finalize = fns
     s = p.setup
     scen, truth, keys = p.inputs(ids)
-    params, carry = init(s.model, s.fdd_params, scen, keys)
+    params, carry = init(s.model, s.fdd_params, s.settings, scen, truth, keys)
     for k in range(n_steps):
-        carry = step(s.fdd_params, s.settings, params, scen, truth, carry, keys, np.int32(k))
-    out = finalize(s.settings, carry[2])
+        carry = step(s.model, s.fdd_params, s.settings, params, truth, carry, keys, np.int32(k))
+    out = finalize(s.fdd_params, s.settings, truth, carry[2])
     return {k: np.asarray(v)[:len(ids)] for k, v in out.items()}
 
 
@@ -599,7 +603,7 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
     """Run time, fusions and element-ops of the campaign scan cut after each stage of its step, on one chunk.
 
     Each cut keeps a running sum of its last stage's outputs in the carry so that XLA cannot
-    drop the stage; the fourth row is the campaign's step (``campaign.step_one``) in the same
+    drop the stage; the fourth row is the campaign's step (``simulate.advance`` with the scoring monitors) in the same
     scan; the last is that step fed a constant instead of the normals (the random numbers'
     cost, by ablation: the rest of the step compiles to the same fusions).
     """
@@ -608,32 +612,34 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
     scen, truth, keys = p.inputs(p.chunks[0])
 
     def cut(stage, model, fdd_params, settings, scenario, truth, key):
-        params, carry = campaign.init_one(model, fdd_params, scenario, key, c.dt_s)
+        monitor = scoring.monitors(settings, truth, fdd_params)
+        observer = scoring.observer(settings, truth, monitor)
+        params, carry = simulate.start(model, fdd_params, scenario, key, c.dt_s, observer)
         words = noise.key_words(key)
 
         def body(state, k):
-            (plant_state, fdd_state, red), acc = state
-            dim = closed_loop.noise_dims(model)[1]
+            (plant_state, fdd_state, seen), acc = state
+            dim = closed_loop.loop(model).noise_dim
             draws = (jnp.full(dim, 0.5, params.qbar_pa.dtype) if stage == 4 else
                      noise.normals(words, k, dim, params.qbar_pa.dtype))
             if stage == 0:
-                return ((plant_state, fdd_state, red), acc + draws.sum()), None
+                return ((plant_state, fdd_state, seen), acc + draws.sum()), None
             if stage >= 3:
-                carry, _, _ = campaign.step_one(params, fdd_params, settings, scenario, truth,
-                                                (plant_state, fdd_state, red), k, draws, c.dt_s, c.substeps, s.kinds)
+                carry, _ = simulate.advance(model, params, fdd_params, (plant_state, fdd_state, seen), k, draws,
+                                            c.dt_s, c.substeps, s.kinds, observer)
                 return (carry, acc), None
             t = k * c.dt_s
-            plant_state, out = closed_loop.step(params, plant_state, t, draws, c.dt_s, c.substeps, s.kinds)
+            plant_state, out = closed_loop.loop(model).step(params, plant_state, t, draws, c.dt_s, c.substeps,
+                                                            s.kinds)
             if stage == 1:
-                return ((plant_state, fdd_state, red), acc + out.u_m), None
-            fdd_state, fo = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
-                                        t, c.dt_s)
+                return ((plant_state, fdd_state, seen), acc + out.u_m), None
+            fdd_state, fo = simulate.fdd_step(fdd_params, fdd_state, out, t, c.dt_s)
             sink = fo.theta.sum() + fo.theta_stall + fo.detected + fo.eta_signal + fo.eta_model
-            return ((plant_state, fdd_state, red), acc + sink), None
+            return ((plant_state, fdd_state, seen), acc + sink), None
 
         zero = jnp.zeros((), params.qbar_pa.dtype)
         (carry, acc), _ = jax.lax.scan(body, (carry, zero), jnp.arange(n_steps))
-        return acc if stage < 3 else campaign.finalize(settings, carry[2], n_steps * c.dt_s)
+        return acc if stage < 3 else scoring.finalize(settings, monitor, carry[2], n_steps * c.dt_s)
 
     rows = []
     params = (s.model, s.fdd_params, s.settings)  # arguments, as in run_batch: compute.once stays in effect

@@ -2,11 +2,12 @@
 
 Runs ``mcfdd campaign CONFIG --scenarios N`` once with this checkout (or ``--checkout``) and once
 with the checkout at ``--baseline`` (its package imported first through ``PYTHONPATH``), each into its own folder
-under ``--work``, then compares the scenario tables row by row (same scenario ids): integer,
-boolean and text columns must be equal, floats within ``--rtol`` relative (non-finite values
-must match). With ``--rates`` it instead compares the overall and per-stratum rates of the two
-summaries: each rate must lie inside the other run's Clopper-Pearson 95 % interval (for a change
-of the random numbers, which changes draws but must not change what the campaign concludes).
+under ``--work``, then compares the scenario tables row by row (same scenario ids): every column
+of the baseline's table must be in this one (columns only this one has are listed as additions),
+integer, boolean and text columns must be equal, floats within ``--rtol`` relative (non-finite
+values must match; ``--rtol 0``: bit for bit). With ``--rates`` it instead compares the overall and
+per-stratum rates of the two summaries: each rate must lie inside the other run's Clopper-Pearson
+95 % interval (for a change of the random numbers, which changes draws but must not change what the campaign concludes).
 
     python benchmarks/compare_campaigns.py --baseline /work/base-a96c20f                  # tables
     python benchmarks/compare_campaigns.py --baseline /work/base-a96c20f --rates          # rates
@@ -51,13 +52,15 @@ def table(out: Path) -> pd.DataFrame:
 
 
 def compare_tables(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> list[str]:
-    """Lines describing each column that differs (empty: the tables agree)."""
+    """Lines describing each column of the baseline ``b`` that differs in ``a`` (empty: the tables agree)."""
     problems = []
-    if list(a.columns) != list(b.columns) or len(a) != len(b):
-        return [f"shapes differ: {a.shape} {b.shape}, columns only in one: "
-                f"{sorted(set(a.columns) ^ set(b.columns))}"]
+    missing = [c for c in b.columns if c not in a.columns]
+    if missing or len(a) != len(b):
+        return [f"rows {len(a)} and {len(b)}, baseline columns missing here: {missing}"]
+    added = [c for c in a.columns if c not in b.columns]
+    print(f"{len(b.columns)} columns compared; added here: {', '.join(added) if added else 'none'}")
     worst = 0.0
-    for col in a.columns:
+    for col in b.columns:
         x, y = a[col].to_numpy(), b[col].to_numpy()
         if np.issubdtype(x.dtype, np.floating):
             finite = np.isfinite(x) & np.isfinite(y)
@@ -78,7 +81,7 @@ def compare_tables(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> list[str]:
 def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
     problems, checked = [], 0
     rates = [r for r in RATES if all(f"{r}{end}" in a.columns for end in ("", "_lo", "_hi"))]
-    merged = a.merge(b, on=["group", "stratum"], suffixes=("_a", "_b"))
+    merged = a.merge(b, on=["stratum", "label"], suffixes=("_a", "_b"))
     for _, row in merged.iterrows():
         for rate in rates:
             if not np.isfinite(row[f"{rate}_a"]) or not np.isfinite(row[f"{rate}_b"]):
@@ -88,10 +91,10 @@ def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
             inside = (row[f"{rate}_lo_b"] <= ra <= row[f"{rate}_hi_b"]
                       and row[f"{rate}_lo_a"] <= rb <= row[f"{rate}_hi_a"])
             if not inside:
-                problems.append(f"{row['group']} {row['stratum']} {rate}: {ra:.4g} [{row[f'{rate}_lo_a']:.4g}, "
+                problems.append(f"{row['stratum']} {row['label']} {rate}: {ra:.4g} [{row[f'{rate}_lo_a']:.4g}, "
                                 f"{row[f'{rate}_hi_a']:.4g}] vs {rb:.4g} [{row[f'{rate}_lo_b']:.4g}, "
                                 f"{row[f'{rate}_hi_b']:.4g}]")
-    overall = merged[merged["group"] == "overall"].iloc[0]
+    overall = merged[merged["stratum"] == "overall"].iloc[0]
     for rate in rates:
         print(f"overall {rate}: this {overall[f'{rate}_a']:.4g} [{overall[f'{rate}_lo_a']:.4g}, "
               f"{overall[f'{rate}_hi_a']:.4g}], baseline {overall[f'{rate}_b']:.4g} "

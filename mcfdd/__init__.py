@@ -17,7 +17,7 @@ from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS befo
 __version__ = "0.1.0"
 
 _EXPORTS = {  # module -> the names it gives the public face
-    "mcfdd.analysis.campaign": ("Status",),
+    "mcfdd.analysis.scoring": ("Status",),
     "mcfdd.config": ("ConfigError", "load_config"),
     "mcfdd.workflows.campaign": ("CampaignResult", "OutputFolderError", "campaign_executor", "run_campaign"),
     "mcfdd.workflows.compare": ("CampaignMismatchError", "CompareResult", "compare"),

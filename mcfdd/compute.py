@@ -48,21 +48,3 @@ def once(tree, one):
 
     return jax.tree.map(leaf, tree)
 
-
-def standard_promotion(tx):
-    """The optax transformation ``tx`` with its ``init`` and ``update`` traced under JAX's standard dtype promotion.
-
-    optax's Adam raises its decay rates to the power of an int32 step count (bias correction), an
-    implicit int -> float promotion that strict promotion (under which the test suite runs the
-    package) refuses; the package's own code promotes nothing implicitly. Values do not change.
-    """
-
-    def init(params):
-        with jax.numpy_dtype_promotion("standard"):
-            return tx.init(params)
-
-    def update(updates, state, params=None):
-        with jax.numpy_dtype_promotion("standard"):
-            return tx.update(updates, state, params)
-
-    return type(tx)(init, update)

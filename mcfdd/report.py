@@ -1,7 +1,9 @@
 """Campaign summaries (the edge): tidy tables of rates, detection times, confusion and gaps.
 
-Input is the scenario table of a campaign (one row per scenario, parameters and outcomes);
-output are pandas tables and a Markdown report. Rates carry exact Clopper-Pearson 95 % intervals.
+Input is the scenario table of a campaign (one row per scenario, parameters and the scoring
+monitors' outcome columns, :mod:`mcfdd.analysis.scoring`: the definitions live there, the counts,
+rates and Markdown here); output are pandas tables and a Markdown report. Rates carry exact
+Clopper-Pearson 95 % intervals.
 """
 
 from __future__ import annotations
@@ -57,11 +59,11 @@ def envelope_bin(df: pd.DataFrame) -> pd.Series:
 
 def _rates(group: pd.DataFrame) -> dict:
     ok = group["status"] == 0
-    faulty = pd.Series(metrics.faulty_runs(group), index=group.index)
+    faulty = group["must_detect"]
     fa_any = pd.Series(metrics.any_false_alarm(group), index=group.index)
-    far = metrics.rate(int((fa_any & ok).sum()), int(ok.sum()))
-    far_loe = metrics.rate(int((group["false_alarm"] & ok).sum()), int(ok.sum()))
-    mdr = metrics.rate(int((faulty & ~group["detected"]).sum()), int(faulty.sum()))
+    far = metrics.rate(int(fa_any.sum()), int(ok.sum()))
+    far_loe = metrics.rate(int(group["false_alarm"].sum()), int(ok.sum()))
+    mdr = metrics.rate(int(group["missed"].sum()), int(faulty.sum()))
     identified = faulty & (group["identified_model"] >= 0)
     ident = metrics.rate(int((faulty & group["identified_correctly"]).sum()), int(identified.sum()))
     times = metrics.quantiles(group.loc[faulty & group["detected"], "detection_latency_s"])
@@ -149,7 +151,7 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
     """
     ok = df["status"] == 0
     ids = df["scenario_id"].to_numpy()
-    faulty = pd.Series(metrics.faulty_runs(df), index=df.index)
+    faulty = df["must_detect"]
     rows = []
     for name, free, detect, scale in (
         ("loe_bank", df["loe_ratio0_max_pre"].where(ok), df["loe_others_min_peak"].where(faulty), 1.0),
@@ -302,31 +304,26 @@ def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value:
     return "\n".join(lines) + "\n"
 
 
-def validation_table(frames: dict, deg_per_m: float, stall_tau_deg: dict, stall_window_s: float,
-                     identification: str) -> pd.DataFrame:
+def validation_table(frames: dict, deg_per_m: float, identification: str) -> pd.DataFrame:
     """Held-out campaign outcomes side by side: one row per FDD setting (e.g. 'before', 'after').
 
-    ``frames`` maps the setting to its campaign scenario table, ``stall_tau_deg`` to its stall
-    threshold; ``stall_detector_fires`` counts runs whose stall detector crossed it outside stall
-    loads, ``stall_late_or_missed`` runs with a relevant stall event that the ``identification``
-    method ('signal' or 'model') did not identify within ``stall_window_s``.
+    ``frames`` maps the setting to its campaign scenario table; ``stall_detector_fires`` counts runs
+    whose stall detector reached its threshold outside stall loads (``stall_false_detection``),
+    ``stall_late_or_missed`` runs with a relevant stall event that the ``identification`` method
+    ('signal' or 'model') did not identify within the stall window (``stall_missed_<method>``).
     """
     rows = []
     for label, df in frames.items():
         overall = summary(df).query("stratum == 'overall'").iloc[0]
         gap = gaps(df, deg_per_m).set_index("detector")
-        ok = df["status"] == 0
-        fires = int((ok & (df["stall_theta_max_free"].to_numpy() * deg_per_m >= stall_tau_deg[label])).sum())
         row = {"fdd": label, **{k: overall[k] for k in (
             "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo",
             "loe_far_hi",
             "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_accuracy",
             "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
             "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
-            "stall_worst_latency_model_s")}, "stall_detector_fires": fires,
-            "stall_late_or_missed": int((ok & (
-                (df[f"stall_worst_latency_{identification}_s"] > stall_window_s)
-                | (df[f"stall_identified_{identification}"] < df["stall_events"]))).sum())}
+            "stall_worst_latency_model_s")}, "stall_detector_fires": int(df["stall_false_detection"].sum()),
+            "stall_late_or_missed": int(df[f"stall_missed_{identification}"].sum())}
         for det in gap.index:
             for k in ("tau_f", "tau_d", "gap"):
                 row[f"{det}_{k}"] = gap.loc[det, k]
@@ -401,7 +398,7 @@ def detectability(df: pd.DataFrame) -> pd.DataFrame:
 
     A faulty run counts in the cell of its dynamic pressure and its peak load fraction after the
     onset; fault-free runs (over their settled run) give the FAR of the same cell, repeated for each
-    fault kind. MDR counts the ``missed`` column of :func:`mcfdd.analysis.metrics.outcomes`. A cell is
+    fault kind. MDR counts the ``missed`` column of the scoring monitors. A cell is
     separable when most of its faulty runs are (fault distance above the uncertainty distance).
     """
     cell = ["qbar_kpa_bin", "load_fraction_bin"]
@@ -411,7 +408,7 @@ def detectability(df: pd.DataFrame) -> pd.DataFrame:
     free_cells = dict(tuple(free.groupby(cell)))
     rows = []
     for kind in [k for k in ("leakage", "surface_damage", "disconnection") if (df["fault_kind"] == k).any()]:
-        faulty = df[(df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        faulty = df[(df["fault_kind"] == kind) & df["must_detect"]]
         for key, g in faulty.groupby(cell):
             mdr = metrics.rate(int(g["missed"].sum()), len(g))
             sep = g["separable"].to_numpy(dtype=bool)
@@ -449,9 +446,8 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
              "A run is separable when the first exceeds the second; a cell when most of its faulty runs are. "
              "Misses in separable runs are the FDD's; in the others nothing could tell the fault from the "
              "uncertainty.", ""]
-    ok = df["status"] == 0
     for kind in det["fault_kind"].unique():
-        g = df[ok & (df["fault_kind"] == kind) & (df["true_model"] > 0)]
+        g = df[(df["fault_kind"] == kind) & df["must_detect"]]
         sep = g["separable"].to_numpy(dtype=bool)
         missed = g["missed"].to_numpy(dtype=bool)
         a = metrics.rate(int(missed[sep].sum()), int(sep.sum()))

@@ -88,7 +88,7 @@ def test_compare_counts_the_discordant_runs_of_two_fdds(two_fdds):
     assert again.labels == ("a", "b") and result.labels == ("a", "b")
     ta, tb = a.scenarios, b.scenarios
     free = (ta["fault_kind"] == "none").to_numpy()
-    faulty = metrics.faulty_runs(ta)
+    faulty = ta["must_detect"].to_numpy()
     rows = result.outcomes.set_index("outcome")
     for name, runs, column in (("loe_false_alarm", free, "false_alarm"), ("missed", faulty, "missed")):
         ea, eb = ta[column].to_numpy()[runs], tb[column].to_numpy()[runs]

@@ -65,6 +65,7 @@ def _table():
                      else 0.05, "true_model": 0, "missed": False, "separable": False, "false_alarm": i == 0})
     df = pd.DataFrame(rows)
     df["status"] = 0
+    df["must_detect"] = df["true_model"] > 0  # the scoring monitors' column: a miss counts
     df["fault_distance"] = np.where(df["fault_kind"] == "none", np.nan, 0.1)
     df["uncertainty_distance"] = 0.05
     return df

@@ -69,7 +69,7 @@ def run_residual(x_q0, u, u_c, k, k0, a):
     """residual.step scanned over samples; u, u_c (n,), k (n, ...) -> r (n, ...)."""
     def body(x_q, inp):
         u_n, u_c_n, k_n = inp
-        return residual.step(x_q, u_n, u_c_n, k_n, k0, a, DT_S)
+        return residual.step(k_n, k0, a, x_q, u_n, u_c_n, DT_S)
     return jax.lax.scan(body, x_q0, (u, u_c, k))[1]
 
 
@@ -347,7 +347,7 @@ def test_excitation_is_the_low_passed_tracking_error():
     u = u_c - rng.normal(0.0, 2e-3, 500)
 
     def body(state, inp):
-        return decision.excitation_step(state, inp[0], inp[1], a, DT_S)
+        return decision.excitation_step(a, state, inp[0], inp[1], DT_S)
 
     out = np.asarray(jax.jit(lambda x, m: jax.lax.scan(body, decision.excitation_init(m[0]), (x, m))[1])(u_c, u))
     ref = zoh_response([a], [1.0, a], np.abs(u_c - u))
@@ -433,8 +433,8 @@ def test_gated_filters_restart_from_equilibrium(bank):
     assert np.max(np.abs(r[reopen:])) > 0.0 and np.max(np.abs(r[:jump])) > 0.0
     last = reopen - 1  # a filter started at the last gated sample steps with its saturated error
     k = lpv.gains(bank, u[last], np.sign(u_c[last] - u[last]), VCAS_M_S, ALT_M)
-    x_q, _ = residual.step(residual.init(u[last]), u[last], u_c[last], k, bank.k0, params.loe.pole, DT_S)
-    r_carried = residual.step(x_q, u[reopen], u_c[reopen], k, bank.k0, params.loe.pole, DT_S)[1]
+    x_q, _ = residual.step(k, bank.k0, params.loe.pole, residual.init(u[last]), u[last], u_c[last], DT_S)
+    r_carried = residual.step(k, bank.k0, params.loe.pole, x_q, u[reopen], u_c[reopen], DT_S)[1]
     assert np.min(np.abs(r_carried)) > 1e-3 * DEG_M  # where the restart gives exactly 0
 
 
@@ -509,7 +509,7 @@ def run_signal(rules, iota, u_c, u):
 
     def body(state, inp):
         i, c, m, tk = inp
-        return stall.signal_step(rules, state, i, stall.conditions(rules, c, m), m, tk, DT_S)
+        return stall.signal_step(rules, state, i, stall.conditions(rules, c, m), m, tk, DT_S)[:2]
     return jax.lax.scan(body, stall.signal_init(u[0]), (iota, u_c, u, t))[1]
 
 

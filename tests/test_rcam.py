@@ -10,7 +10,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from mcfdd import cli, config
-from mcfdd.analysis import batch, build, campaign, scenarios, simulate
+from mcfdd.analysis import batch, build, campaign, scenarios, scoring, simulate
 from mcfdd.fdd import system
 from mcfdd.plant import atmosphere, closed_loop, rcam, turbulence
 from mcfdd.workflows.common import load_bank
@@ -295,7 +295,7 @@ def test_campaign_reductions_record_the_flight_point_range_and_the_fdd_schedules
     fdd = build.fdd_params(cfg.fdd, bank, model.actuator.r_arm_m)
     scen = scenarios.to_scenario(cols, np.float64)
     kinds, keys = batch.kinds_in(scen.manoeuvre.kind), simulate.run_keys(0, range(n))
-    truth = campaign.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool))
+    truth = scoring.Truth(np.full(n, np.inf), np.zeros((n, bank.k0.shape[0]), bool), np.zeros(n, np.int32))
     raw = campaign.run_batch(model, fdd, build.settings(cfg.evaluation, model.actuator.r_arm_m), scen, truth, keys,
                              1200, 0.01, 4, kinds)
     plant, fdd_out = simulate.fdd_batch(model, fdd, scen, keys, 1200, 0.01, 4, kinds)

@@ -1,8 +1,8 @@
 """Worst-case search and tuning (Sections 5.3 and 6.2.1) against independent references.
 
-Smooth extremes against scipy's logsumexp; the search space's traced scenarios against the table
-conversion ``to_scenario`` and the Mach-limit speed against the Mach number it gives; gradients through the scan
-against central finite differences (float64, conftest); the search on an analytic objective with
+The search space's traced scenarios against the table conversion ``to_scenario`` and the
+Mach-limit speed against the Mach number it gives; gradients through the scan against central
+finite differences (float64, conftest); the search on an analytic objective with
 a known maximiser and on a plant case whose maximiser a brute-force grid locates; the gradient
 search against Monte Carlo with the same number of simulations; tuning enlarging the detection
 gap; no recompilation for new FDD numbers; configuration errors naming their key.
@@ -15,10 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.special import logsumexp
 
 from mcfdd import cli, config
-from mcfdd.analysis import build, campaign, scenarios, simulate, tuning, worst_case as wc
+from mcfdd.analysis import build, campaign, scenarios, scoring, simulate, tuning, worst_case as wc
 from mcfdd.plant import atmosphere
 from mcfdd.workflows.common import CompileCounter, load_bank
 from mcfdd.workflows.tune import training_set
@@ -112,28 +111,6 @@ def tune_data(tmp_path_factory):
     return cfg, bank, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm), data
 
 
-def test_smooth_extremes_against_logsumexp():
-    rng = np.random.default_rng(0)
-    x = rng.normal(size=200)
-    mask = rng.random(200) < 0.6
-    temperature = 0.3
-    acc = wc.softmax_init(jnp.float64)
-    for xi, mi in zip(x, mask):
-        acc = wc.softmax_step(acc, xi, mi, temperature)
-    reference = temperature * logsumexp(x[mask] / temperature)
-    assert float(wc.softmax_value(acc, temperature)) == pytest.approx(reference, rel=1e-12)
-    assert float(wc.soft_max(jnp.asarray(x), jnp.asarray(mask), temperature)) == pytest.approx(reference, rel=1e-12)
-    assert float(wc.soft_min(jnp.asarray(x), jnp.asarray(mask), temperature)) == pytest.approx(
-        -temperature * logsumexp(-x[mask] / temperature), rel=1e-12)
-    assert float(wc.softmax_value(wc.softmax_init(jnp.float64), temperature)) == -np.inf
-    # the gradient is the softmax weights on the masked values, zero elsewhere (no NaN from -inf)
-    grad = jax.grad(lambda v: wc.soft_max(v, jnp.asarray(mask), temperature))(jnp.asarray(x))
-    weights = np.where(mask, np.exp((x - reference) / temperature), 0.0)
-    np.testing.assert_allclose(np.asarray(grad), weights, rtol=1e-10, atol=1e-14)
-    # tends to the hard extreme as the temperature goes to zero
-    assert float(wc.soft_max(jnp.asarray(x), jnp.asarray(mask), 1e-4)) == pytest.approx(x[mask].max(), abs=1e-3)
-
-
 def test_traced_scenarios_match_the_table_conversion(tmp_path):
     cfg = load(config.CampaignConfig, tmp_path, """
 [space]
@@ -188,9 +165,9 @@ def test_search_gradient_matches_central_differences(corner):
                                    corner.temperature, detector="stall", bound="free", **corner.static())
 
     def f(v):
-        soft, _, _ = wc.evaluate(corner.model, corner.fdd_params, corner.settings, box, anchors, jnp.asarray(v), keys,
+        columns, _ = wc.evaluate(corner.model, corner.fdd_params, corner.settings, box, anchors, jnp.asarray(v), keys,
                                  corner.temperature, **corner.static())
-        return np.asarray(soft["stall_free"])
+        return np.asarray(columns["smooth_log_stall_theta_max_free"])
 
     h = 1e-5
     fd = np.stack([(f(u + h * e) - f(u - h * e)) / (2 * h) for e in np.eye(2)], axis=1)
@@ -228,9 +205,9 @@ def test_ascent_finds_a_known_maximiser():
         return value, None, grad
 
     u0 = np.array([[0.9, 0.1, 0.2], [0.0, 0.0, 0.0], [0.5, 0.5, 0.9]])
-    history = wc.ascend(fn, u0, 150, 0.03)
-    np.testing.assert_allclose(history.u[-1], np.tile([0.3, 0.7, 1.0], (3, 1)), atol=5e-3)
-    assert np.all(history.score[-1] >= history.score[0])
+    trace = wc.ascend(fn, u0, 150, 0.03)
+    np.testing.assert_allclose(np.asarray(trace.params[-1]), np.tile([0.3, 0.7, 1.0], (3, 1)), atol=5e-3)
+    assert np.all(np.asarray(trace.values[-1]) >= np.asarray(trace.values[0]))
 
 
 def test_search_finds_the_plant_maximiser(corner):
@@ -304,7 +281,8 @@ def test_new_fdd_numbers_do_not_recompile(tune_data, corner):
     # a campaign batch with the FDD before and after tuning: one compilation
     cols, n = build.design(cfg.campaign("validation"))
     scen = scenarios.to_scenario(cols, np.float64)
-    truth = campaign.Truth(np.asarray(scenarios.fault_onsets(cols, n)), np.zeros((n, bank.k0.shape[0]), bool))
+    truth = scoring.Truth(np.asarray(scenarios.fault_onsets(cols, n)), np.zeros((n, bank.k0.shape[0]), bool),
+                          np.zeros(n, np.int32))
     args = (build.settings(cfg.evaluation, cfg.plant.actuator.r_arm_m), scen, truth, simulate.run_keys(2, range(n)),
             200, DT_S, 4, (5, 6))
     model = build.plant_model(cfg.plant)

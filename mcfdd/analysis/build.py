@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from mcfdd import columns, config
-from mcfdd.analysis import batch, campaign, lpv_fit, metrics, scenarios, worst_case
+from mcfdd.analysis import batch, lpv_fit, metrics, scenarios, scoring, worst_case
 from mcfdd.fdd import evaluator, lpv, stall, system
 from mcfdd.plant import actuator, aircraft, atmosphere, closed_loop, control_law, hinge, manoeuvres
 
@@ -87,9 +87,9 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
     )
 
 
-def settings(eval_cfg: config.EvaluationConfig, r_arm_m: float) -> campaign.Settings:
+def settings(eval_cfg: config.EvaluationConfig, r_arm_m: float) -> scoring.Settings:
     """Scoring settings of a campaign (the tracking-error floor in m of rod travel)."""
-    return campaign.Settings(eval_cfg.settle_s, eval_cfg.t_detec_s, eval_cfg.stall_grace_s,
+    return scoring.Settings(eval_cfg.settle_s, eval_cfg.t_detec_s, eval_cfg.stall_grace_s,
                              eval_cfg.stall_min_duration_s, math.radians(eval_cfg.stall_min_error_deg) * r_arm_m,
                              eval_cfg.stall_window_s)
 

@@ -36,9 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mcfdd.analysis import batch
+from mcfdd.analysis import batch, optimise
 from mcfdd.analysis.simulate import sample_time
-from mcfdd.compute import standard_promotion
 from mcfdd.fdd import lpv, thresholds
 from mcfdd.plant import actuator, atmosphere, closed_loop, hinge, manoeuvres
 
@@ -240,18 +239,15 @@ def _losses(coef, bank: lpv.GainBank, problem: FitProblem, weight, dt_s: float):
     return jnp.sum(weight * jnp.mean(e**2, axis=-1), axis=1) / jnp.maximum(jnp.sum(weight, axis=1), 1.0)
 
 
-_ADAM = standard_promotion(optax.scale_by_adam())
-
-
 @partial(jax.jit, static_argnames="dt_s")
-def _adam_step(coef, opt_state, learning_rate, bank: lpv.GainBank, problem: FitProblem, weight, free, dt_s: float):
+def _loss_and_grad(coef, bank: lpv.GainBank, problem: FitProblem, weight, free, dt_s: float):
+    """Total loss, the losses of the models (N,) and the gradient in the free models' coefficients."""
     def total(c):
         losses = _losses(c, bank, problem, weight, dt_s)
         return jnp.sum(losses), losses
 
-    (_, losses), grads = jax.value_and_grad(total, has_aux=True)(coef)
-    direction, opt_state = _ADAM.update(grads * free[:, None, None], opt_state)
-    return coef - learning_rate * direction, opt_state, losses
+    (value, losses), grads = jax.value_and_grad(total, has_aux=True)(coef)
+    return value, losses, grads * free[:, None, None]
 
 
 def fit(bank: lpv.GainBank, problem: FitProblem, dt_s: float, *, iterations: int, learning_rate: float,
@@ -259,24 +255,25 @@ def fit(bank: lpv.GainBank, problem: FitProblem, dt_s: float, *, iterations: int
     """Output-error fit of the bank's coefficients, starting from ``bank`` (e.g. :func:`initial_bank`).
 
     Adam, step decaying exponentially from ``learning_rate`` to ``final_learning_rate`` (1/s) over
-    ``iterations``; only runs :func:`in_domain` for ``margin`` count; models with ``free`` False
-    (N,) keep their coefficients. ``callback(iteration, losses)`` is called after every iteration
-    with the losses (N,) before its update. Returns (fitted bank with k0 = C0 const, i.e. the gain
-    at the reference flight point and x = 0 averaged over both directions; loss history
-    (iterations, N)).
+    ``iterations`` (:func:`mcfdd.analysis.optimise.run`); only runs :func:`in_domain` for ``margin``
+    count; models with ``free`` False (N,) keep their coefficients. ``callback(iteration, losses)``
+    is called after every iteration with the losses (N,) before its update. Returns (fitted bank
+    with k0 = C0 const, i.e. the gain at the reference flight point and x = 0 averaged over both
+    directions; loss history (iterations, N)).
     """
     n = bank.coef.shape[0]
     free = jnp.ones(n, bank.coef.dtype) if free is None else jnp.asarray(free, bank.coef.dtype)
     weight = in_domain(problem, margin).astype(bank.coef.dtype)
     schedule = optax.exponential_decay(learning_rate, iterations, final_learning_rate / learning_rate)
-    coef, opt_state = bank.coef, _ADAM.init(bank.coef)
-    history = []
-    for i in range(iterations):
-        coef, opt_state, losses = _adam_step(coef, opt_state, schedule(i), bank, problem, weight, free, dt_s)
-        history.append(np.asarray(losses))
-        if callback is not None:
-            callback(i, history[-1])
-    return bank._replace(coef=coef, k0=coef[:, 0, 0]), np.stack(history)
+    adam = optax.chain(optax.scale_by_adam(), optax.scale_by_schedule(lambda i: -schedule(i)))
+
+    def fn(coef):
+        value, losses, grads = _loss_and_grad(coef, bank, problem, weight, free, dt_s)
+        return value, np.asarray(losses), grads
+
+    trace = optimise.run(fn, bank.coef, adam, iterations, evaluate_last=False,
+                         callback=None if callback is None else (lambda i, value, losses: callback(i, losses)))
+    return bank._replace(coef=trace.final, k0=trace.final[:, 0, 0]), np.stack(trace.aux)
 
 
 def error_summary(rms, max_error, domain):

@@ -1,14 +1,9 @@
-"""FDD performance metrics (DESIGN.md section 5): outcomes per scenario, rates with exact intervals.
+"""FDD performance statistics (DESIGN.md section 5): rates with exact intervals, quantiles, detectability.
 
-- Two levels: detection (the fault-free model rejected: "an LOE fault is present") and
-  identification (the decoded model of the signature (15)).
-- False alarm: a detection (or eta = 1) with no fault present and no stall under way, after the
-  settling time. FAR = runs with a false alarm / runs.
-- Detection time: first detection after the fault onset; missed detection if none within the
-  detection window [t_f, t_f + t_detec] (cut at the end of the run).
-- Identification: the first fault model identified within the detection window (in fault-free
-  runs: before any fault, a false identification); correct if it is the grid model nearest to
-  the true fault or one of the two that bracket it.
+The outcomes of a run (false alarm, detection, missed detection, identification, stall events)
+are the scoring monitors' columns (:mod:`mcfdd.analysis.scoring`); here are the statistics over
+runs built on them:
+
 - Rates carry exact Clopper-Pearson intervals: zero events in n runs only shows a rate below
   about 3/n at 95 %.
 - Detectability: the distance (16) |k_j - k_i| / (k_i + k_j) between the plant's own small-error
@@ -57,67 +52,6 @@ def quantiles(values) -> dict:
     if v.size == 0:
         return {"median": float("nan"), "p95": float("nan"), "max": float("nan")}
     return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
-
-
-def outcomes(raw: dict, onset_s, accept, nearest, duration_s: float, t_detec_s: float) -> dict:
-    """Per-scenario outcome columns from the simulator's reductions (numpy arrays, one row each).
-
-    ``onset_s`` is inf for fault-free rows; ``accept`` (n, N) marks acceptable identifications;
-    ``nearest`` is the true (nearest) model id, -1 for non-parametric faults.
-    """
-    onset = np.asarray(onset_s, dtype=float)
-    ok = np.asarray(raw["status"]) == 0
-    det_time = np.asarray(raw["detection_time_s"], dtype=float)
-    faulty = np.isfinite(onset)
-    detected = ok & faulty & np.isfinite(det_time)
-    id_time = np.where(faulty, np.asarray(raw["identification_time_s"], dtype=float),
-                       np.asarray(raw["false_identification_time_s"], dtype=float))
-    identified = ok & np.isfinite(id_time)
-    id_model = np.where(identified, np.where(faulty, raw["identified_model"], raw["false_identification_model"]), -1)
-    rows = np.arange(len(onset))
-    correct = identified & faulty & accept[rows, np.clip(id_model, 0, accept.shape[1] - 1)] & (id_model >= 0)
-    eta_sig = np.asarray(raw["eta_outside_signal_time_s"], dtype=float)
-    eta_mod = np.asarray(raw["eta_outside_model_time_s"], dtype=float)
-    before = np.where(faulty, onset, np.inf)
-    n_events = np.asarray(raw["stall_events"])
-    return {
-        "status": np.asarray(raw["status"]),
-        "true_model": np.asarray(nearest),
-        "window_s": np.where(faulty, np.minimum(t_detec_s, np.maximum(duration_s - onset, 0.0)), np.nan),
-        "false_alarm": ok & np.isfinite(np.asarray(raw["false_alarm_time_s"], dtype=float)),
-        "false_alarm_time_s": np.asarray(raw["false_alarm_time_s"], dtype=float),
-        "detected": detected,
-        "detection_time_s": np.where(detected, det_time, np.nan),
-        "detection_latency_s": np.where(detected, det_time - np.where(faulty, onset, 0.0), np.nan),
-        "identified_model": id_model,
-        "identification_time_s": np.where(identified, id_time, np.nan),
-        "identification_latency_s": np.where(identified & faulty, id_time - np.where(faulty, onset, 0.0), np.nan),
-        "identified_correctly": correct,
-        "false_identification": identified & ~faulty,
-        "stall_events": n_events,
-        "stall_seen": np.asarray(raw["stall_seen"]),
-        "stall_identified_signal": np.asarray(raw["stall_identified_signal"]),
-        "stall_identified_model": np.asarray(raw["stall_identified_model"]),
-        "stall_worst_latency_signal_s": _finite_or_nan(raw["stall_worst_latency_signal_s"]),
-        "stall_worst_latency_model_s": _finite_or_nan(raw["stall_worst_latency_model_s"]),
-        "eta_false_signal": ok & (eta_sig < before),
-        "eta_false_signal_time_s": _finite_or_nan(eta_sig),
-        "eta_false_model": ok & (eta_mod < before),
-        "eta_false_model_time_s": _finite_or_nan(eta_mod),
-        "stall_theta_max_free": _finite_or_nan(raw["stall_theta_max_free"]),
-        "stall_theta_peak_min": _finite_or_nan(raw["stall_theta_peak_min"]),
-        "loe_ratio0_max_pre": _finite_or_nan(np.asarray(raw["ratio_max_pre"])[:, 0]),
-        "loe_others_min_peak": _finite_or_nan(raw["others_min_peak"]),
-        "loe_ratio0_max_post": _finite_or_nan(raw["ratio0_max_post"]),
-        "missed": ok & faulty & (np.asarray(nearest) >= 1) & ~detected,
-        "peak_load_fraction": _finite_or_nan(raw["peak_load_fraction"]),
-        "peak_deflection_deg": _finite_or_nan(raw["peak_deflection_deg"]),
-        "jam_taken_for_stall": ok & np.isfinite(np.asarray(raw["jam_stall_time_s"], dtype=float)),
-        "jam_taken_for_stall_time_s": _finite_or_nan(raw["jam_stall_time_s"]),
-        **{f"{name}_{end}_{unit}": np.asarray(raw[f"{name}_{end}_{si}"], dtype=float) / scale
-           for name, si, unit, scale in (("vcas", "m_s", "kt", atmosphere.KT_TO_M_S), ("altitude", "m", "m", 1.0))
-           for end in ("min", "max")},
-    }
 
 
 UNCERTAIN_SCALES = ("kci_scale", "supply_pressure_scale", "hinge_scale")
@@ -183,11 +117,6 @@ def detectability_columns(cols: dict, peak_load_fraction, ranges: dict) -> dict:
             "uncertainty_distance": sep["uncertainty_distance"], "separable": faulty & sep["separable"]}
 
 
-def _finite_or_nan(values):
-    v = np.asarray(values, dtype=float)
-    return np.where(np.isfinite(v), v, np.nan)
-
-
 def bound_with_witness(values, scenario_ids, kind: str):
     """Supremum (kind='sup') or infimum ('inf') of the finite values and the scenario where it occurs."""
     v = np.asarray(values, dtype=float)
@@ -229,12 +158,6 @@ def decision_history(detected, t_s, onset_s):
 LOAD_FRACTION_HIGH = 0.4  # peak hinge-load fraction from which a disconnection must be detected (issue 22)
 
 
-def faulty_runs(cols) -> np.ndarray:
-    """Runs that must be detected: status ok, a parametric fault whose nearest grid model is a fault model."""
-    return ((np.asarray(cols["status"]) == 0) & np.isin(np.asarray(cols["fault_kind"]), scenarios.PARAMETRIC)
-            & (np.asarray(cols["true_model"]) > 0))
-
-
 def any_false_alarm(cols) -> np.ndarray:
     """A false alarm of either system: an LOE detection or a stall identification (signal rules) outside a stall."""
     return np.asarray(cols["false_alarm"]) | np.asarray(cols["eta_false_signal"])
@@ -248,7 +171,7 @@ def paired_outcomes(cols) -> dict:
     """
     ok = np.asarray(cols["status"]) == 0
     kind = np.asarray(cols["fault_kind"])
-    free, faulty = ok & (kind == "none"), faulty_runs(cols)
+    free, faulty = ok & (kind == "none"), np.asarray(cols["must_detect"])
     missed = np.asarray(cols["missed"])
     loaded = faulty & (kind == "disconnection") & (np.asarray(cols["peak_load_fraction"]) >= LOAD_FRACTION_HIGH)
     events = np.asarray(cols["stall_events"])

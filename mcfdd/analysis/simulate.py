@@ -1,4 +1,12 @@
-"""Full time histories of a few runs: the closed-loop plant in one jitted, vmapped scan.
+"""Plant and FDD composed: the one closed-loop run every tool scans (DESIGN.md section 2).
+
+A run is the plant of its model (:func:`mcfdd.plant.closed_loop.loop`: roll axis or full
+aircraft) with, optionally, the FDD fed by what the aircraft measures of each plant sample
+(:func:`fdd_step`: u_c, u and the measured Vcas and altitude); what the run keeps per step is an
+:class:`Observer` (diffrax's ``SubSaveAt(fn=...)``): the full signals (:data:`HISTORY`, for
+``simulate`` of a few runs), or the scoring monitors' running state and nothing per step (a
+campaign, the worst-case search). The FDD does not act on the plant, so it can also run alone over
+stored plant histories (:func:`fdd_over`, the tuner) with the same step and the same observers.
 
 Random numbers: run ``i`` of a batch has the key ``fold_in(key(seed), i)``, and step ``k`` draws
 counter-based normals keyed by that key and k (:mod:`mcfdd.analysis.noise`), so a run's signals
@@ -7,7 +15,9 @@ do not depend on the batch it is simulated in.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -50,17 +60,91 @@ def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1):
     return jax.lax.scan(one, carry, jnp.arange(n_steps), unroll=unroll)
 
 
+class Observer(NamedTuple):
+    """What a run keeps: ``init(dtype) -> state``; ``update(state, t_s, plant, fdd) -> (state, y)`` at
+    every sample (``fdd`` None for the plant alone). A run returns the final state and the y of every
+    step stacked along a leading time axis."""
+
+    init: Callable
+    update: Callable
+
+
+HISTORY = Observer(lambda dtype: None, lambda state, t_s, plant, fdd: (None, (plant, fdd)))
+"""Keeps every sample's plant outputs (and FDD outputs, None without the FDD)."""
+
+
+def fdd_step(fdd_params: system.FddParams, state: system.FddState, plant, t_s, dt_s: float):
+    """The FDD on what the aircraft measures of a plant sample: command u_c, measured position u,
+    measured Vcas and altitude. Returns (new state, :class:`~mcfdd.fdd.system.FddOutputs`)."""
+    return system.step(fdd_params, state, plant.u_c_m, plant.u_m, plant.vcas_m_s, plant.altitude_m, t_s, dt_s)
+
+
+def start(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario, key,
+          dt_s: float, observer: Observer = HISTORY):
+    """A run at t = 0: (plant parameters, carry (plant state, FDD state or None, observer state))."""
+    plant = closed_loop.loop(model)
+    params = plant.prepare(model, scenario, dt_s)
+    plant_state = plant.init(params, jax.random.normal(key, (plant.init_noise_dim,)))
+    zero = jnp.zeros_like(params.qbar_pa)
+    fdd_state = None if fdd_params is None else system.init(fdd_params, zero)
+    return params, (plant_state, fdd_state, observer.init(zero.dtype))
+
+
+def advance(model: closed_loop.PlantModel, params, fdd_params: system.FddParams | None, carry, k, normals,
+            dt_s: float, substeps: int, kinds: tuple[int, ...], observer: Observer = HISTORY):
+    """Sample k of a run (``normals``: the plant's ``noise_dim`` standard normals). Returns (new carry, the
+    observer's y)."""
+    plant_state, fdd_state, seen = carry
+    t = sample_time(k, dt_s)
+    plant_state, out = closed_loop.loop(model).step(params, plant_state, t, normals, dt_s, substeps, kinds)
+    fo = None
+    if fdd_params is not None:
+        fdd_state, fo = fdd_step(fdd_params, fdd_state, out, t, dt_s)
+    seen, y = observer.update(seen, t, out, fo)
+    return (plant_state, fdd_state, seen), y
+
+
+def run(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario, key,
+        n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...], observer: Observer = HISTORY):
+    """One run of n_steps samples of the plant of ``model`` with the FDD (None: the plant alone).
+
+    Returns (the observer's final state, its stacked per-step y).
+    """
+    params, carry = start(model, fdd_params, scenario, key, dt_s, observer)
+
+    def body(carry, k, normals):
+        return advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds, observer)
+
+    (_, _, seen), ys = scan_steps(body, carry, key, n_steps, closed_loop.loop(model).noise_dim)
+    return seen, ys
+
+
+def fdd_over(fdd_params: system.FddParams, plant, observer: Observer, dt_s: float, remat: bool = False):
+    """The FDD alone over one stored plant history (PlantOutputs with leaves (T,)), observed as a run.
+
+    ``remat`` rematerialises the step in a gradient (memory of one carry per step). Returns (the
+    observer's final state, its stacked per-step y).
+    """
+    zero = jnp.zeros_like(plant.u_m[0])
+
+    def body(carry, xs):
+        fdd_state, seen = carry
+        k, out = xs
+        t = sample_time(k, dt_s)
+        fdd_state, fo = fdd_step(fdd_params, fdd_state, out, t, dt_s)
+        seen, y = observer.update(seen, t, out, fo)
+        return (fdd_state, seen), y
+
+    (_, seen), ys = jax.lax.scan(jax.checkpoint(body) if remat else body,
+                                 (system.init(fdd_params, zero), observer.init(zero.dtype)),
+                                 (jnp.arange(plant.u_m.shape[0]), plant))
+    return seen, ys
+
+
 def plant_history(model: closed_loop.PlantModel, scenario: closed_loop.Scenario, key, n_steps: int,
                   dt_s: float, substeps: int, kinds: tuple[int, ...]):
     """Time history of one run: :class:`~mcfdd.plant.closed_loop.PlantOutputs` with leading axis n_steps."""
-    params = closed_loop.prepare(model, scenario, dt_s)
-    init_dim, step_dim = closed_loop.noise_dims(model)
-    state = closed_loop.init(params, jax.random.normal(key, (init_dim,)))
-
-    def body(state, k, noise):
-        return closed_loop.step(params, state, sample_time(k, dt_s), noise, dt_s, substeps, kinds)
-
-    return scan_steps(body, state, key, n_steps, step_dim)[1]
+    return run(model, None, scenario, key, n_steps, dt_s, substeps, kinds)[1][0]
 
 
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))
@@ -72,21 +156,7 @@ def plant_batch(model, scenarios, keys, n_steps: int, dt_s: float, substeps: int
 def fdd_history(model: closed_loop.PlantModel, fdd_params: system.FddParams, scenario: closed_loop.Scenario, key,
                 n_steps: int, dt_s: float, substeps: int, kinds: tuple[int, ...]):
     """Plant and FDD together over one run: (PlantOutputs, FddOutputs), leading axis n_steps."""
-    params = closed_loop.prepare(model, scenario, dt_s)
-    init_dim, step_dim = closed_loop.noise_dims(model)
-    plant_state = closed_loop.init(params, jax.random.normal(key, (init_dim,)))
-    zero = jnp.zeros_like(params.qbar_pa)
-    fdd_state = system.init(fdd_params, zero)
-
-    def body(carry, k, noise):
-        plant_state, fdd_state = carry
-        t = sample_time(k, dt_s)
-        plant_state, out = closed_loop.step(params, plant_state, t, noise, dt_s, substeps, kinds)
-        fdd_state, fdd_out = system.step(fdd_params, fdd_state, out.u_c_m, out.u_m, out.vcas_m_s, out.altitude_m,
-                                         t, dt_s)
-        return (plant_state, fdd_state), (out, fdd_out)
-
-    return scan_steps(body, (plant_state, fdd_state), key, n_steps, step_dim)[1]
+    return run(model, fdd_params, scenario, key, n_steps, dt_s, substeps, kinds)[1]
 
 
 @partial(jax.jit, static_argnames=("n_steps", "dt_s", "substeps", "kinds"))

@@ -4,9 +4,10 @@ The free parameters of a detector are its filter pole a (eq. 20, realisation 24)
 evaluator alpha, beta, gamma (eq. 14); its threshold tau must lie in the detection gap
 ``tau_f < tau <= tau_d`` of eqs. (26)-(27). The FDD does not act on the plant, so the plant
 histories of a training set (u_c, u, rod position, stall flag) are simulated once
-(:func:`mcfdd.analysis.simulate.plant_batch`) and the FDD alone runs over them in a scan that is
-differentiated in its parameters (the scan body is rematerialised, so memory is one carry per
-step). The campaign reductions and the smooth bounds of :mod:`mcfdd.analysis.worst_case` run in
+(:func:`mcfdd.analysis.simulate.plant_batch`) and the FDD alone runs over them
+(:func:`mcfdd.analysis.simulate.fdd_over`) in a scan that is differentiated in its parameters (the
+scan body is rematerialised, so memory is one carry per step). The campaign's scoring monitors
+(:func:`mcfdd.analysis.scoring.monitors`, with a temperature: their smooth versions too) run in
 the same scan; over runs, tau_f is the smooth maximum of the runs' bounds and tau_d the smooth
 minimum. The objective
 
@@ -19,7 +20,7 @@ identification rules are not tuned. The threshold is then placed inside the gap,
 ``tau = tau_f + margin (tau_d - tau_f)``: near tau_f for fast detection (Section 5.3). Where the
 gap stays negative, candidate thresholds are compared by the false alarms and missed detections
 they give on the training set (:func:`threshold_scan`; the threshold is traced, so one compilation
-serves all candidates).
+serves all candidates). The iterations are :func:`mcfdd.analysis.optimise.run`'s.
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mcfdd.analysis import campaign, simulate, worst_case
-from mcfdd.compute import standard_promotion
+from mcfdd.analysis import optimise, scoring, simulate
+from mcfdd.analysis.scoring import smooth
 from mcfdd.fdd import evaluator, system
 from mcfdd.plant import closed_loop
 
@@ -102,65 +103,49 @@ def candidates(tau_f: float, tau_d: float, n: int) -> np.ndarray:
 
 
 class TrainingSet(NamedTuple):
-    """Stored plant histories of B runs and what their evaluation needs.
+    """Stored plant histories of B runs and what their scoring needs.
 
-    plant: :class:`~mcfdd.plant.closed_loop.PlantOutputs` with leaves (B, T);
-    vcas_m_s, altitude_m: (B,) flight points; truth: :class:`campaign.Truth` with leaves (B,) and
-    (B, N); counts: (B,) runs whose LOE detection bound counts (parametric fault whose nearest
-    model is a fault model), as in :func:`mcfdd.report.gaps`.
+    plant: :class:`~mcfdd.plant.closed_loop.PlantOutputs` with leaves (B, T); truth:
+    :class:`mcfdd.analysis.scoring.Truth` with leaves (B,) and (B, N).
     """
 
     plant: closed_loop.PlantOutputs
-    vcas_m_s: jnp.ndarray
-    altitude_m: jnp.ndarray
-    truth: campaign.Truth
-    counts: jnp.ndarray
+    truth: scoring.Truth
 
 
-def fdd_run(fdd_params: system.FddParams, settings: campaign.Settings, plant: closed_loop.PlantOutputs, vcas_m_s,
-            altitude_m, truth: campaign.Truth, temperature, dt_s: float):
-    """The FDD over one stored history (leaves (T,)). Returns (smooth bounds dict, campaign outcomes)."""
-    n_steps = plant.u_m.shape[0]
-    zero = jnp.zeros_like(plant.u_m[0])
-    carry = (system.init(fdd_params, zero), campaign.reduction_init(fdd_params.loe.bank.k0.shape[0], zero.dtype),
-             worst_case.soft_init(zero.dtype))
-
-    @jax.checkpoint
-    def body(carry, xs):
-        state, red, acc = carry
-        k, out = xs
-        t = simulate.sample_time(k, dt_s)
-        state, fo = system.step(fdd_params, state, out.u_c_m, out.u_m, vcas_m_s, altitude_m, t, dt_s)
-        new = campaign.reduction_step(settings, truth, red, t, out, fo)
-        return (state, new, worst_case.soft_step(settings, truth, temperature, acc, red, new, t, out, fo)), None
-
-    (_, red, acc), _ = jax.lax.scan(body, carry, (jnp.arange(n_steps), plant))
-    outcomes = campaign.finalize(settings, red, n_steps * dt_s)
-    return worst_case.soft_finalize(acc, red, outcomes, temperature), outcomes
+def fdd_run(fdd_params: system.FddParams, settings: scoring.Settings, plant: closed_loop.PlantOutputs,
+            truth: scoring.Truth, temperature, dt_s: float) -> dict:
+    """The FDD over one stored history (leaves (T,)): the monitors' columns, with their smooth versions
+    unless ``temperature`` is None."""
+    monitor = scoring.monitors(settings, truth, fdd_params, temperature)
+    state, _ = simulate.fdd_over(fdd_params, plant, scoring.observer(settings, truth, monitor), dt_s, remat=True)
+    return scoring.finalize(settings, monitor, state, plant.u_m.shape[0] * dt_s)
 
 
-def bounds(fdd_params: system.FddParams, settings: campaign.Settings, data: TrainingSet, temperature, dt_s: float,
+def training_columns(fdd_params, settings, data: TrainingSet, temperature, dt_s: float) -> dict:
+    """:func:`fdd_run` over the training set (B,)."""
+    return jax.vmap(lambda plant, truth: fdd_run(fdd_params, settings, plant, truth, temperature, dt_s))(
+        data.plant, data.truth)
+
+
+def bounds(fdd_params: system.FddParams, settings: scoring.Settings, data: TrainingSet, temperature, dt_s: float,
            detector: str) -> dict:
     """tau_f and tau_d of a detector over the training set, smooth (log units) and hard.
 
     Keys: ``soft_free``, ``soft_detect`` (log of theta units), ``tau_f``, ``tau_d`` (hard; rod units
-    for the stall detector, theta / ||u|| for the LOE bank; nan if no run counts).
+    for the stall detector, theta / ||u|| for the LOE bank; nan if no run counts). The LOE detection
+    bound counts the runs that must be detected (``must_detect``), as :func:`mcfdd.report.gaps` does.
     """
-    def one(plant, v, h, truth):
-        return fdd_run(fdd_params, settings, plant, v, h, truth, temperature, dt_s)
-
-    soft, outcomes = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
-    ok = outcomes["status"] == campaign.Status.OK
-    counts = ok & (data.counts if detector == "loe" else True)
-    free = soft[f"{detector}_free"]
-    detect = soft[f"{detector}_detect"]
-    hard_free = worst_case.hard_value(outcomes, detector, "free")
-    hard_detect = worst_case.hard_value(outcomes, detector, "detect")
+    columns = training_columns(fdd_params, settings, data, temperature, dt_s)
+    ok = columns["status"] == scoring.Status.OK
+    counts = columns["must_detect"] if detector == "loe" else ok
+    free, detect = (columns[f"smooth_log_{scoring.BOUNDS[(detector, b)]}"] for b in ("free", "detect"))
+    hard_free, hard_detect = (columns[scoring.BOUNDS[(detector, b)]] for b in ("free", "detect"))
     free_in = ok & jnp.isfinite(hard_free)
     detect_in = counts & jnp.isfinite(hard_detect)
     return {
-        "soft_free": worst_case.soft_max(free, free_in & jnp.isfinite(free), temperature),
-        "soft_detect": worst_case.soft_min(detect, detect_in & jnp.isfinite(detect), temperature),
+        "soft_free": smooth.soft_max(free, free_in & jnp.isfinite(free), temperature),
+        "soft_detect": smooth.soft_min(detect, detect_in & jnp.isfinite(detect), temperature),
         "tau_f": jnp.where(jnp.any(free_in), jnp.max(jnp.where(free_in, hard_free, -jnp.inf)), jnp.nan),
         "tau_d": jnp.where(jnp.any(detect_in), jnp.min(jnp.where(detect_in, hard_detect, jnp.inf)), jnp.nan),
     }
@@ -172,13 +157,14 @@ STATIC = ("dt_s", "detector", "tune_pole")
 @partial(jax.jit, static_argnames=STATIC)
 def gap_and_grad(theta: Tunable, fdd_params, settings, data: TrainingSet, temperature, dt_s: float, detector: str,
                  tune_pole: bool):
-    """Smooth log gap ``soft_detect - soft_free`` at ``theta``, the bounds and the gradient in theta."""
+    """Smooth log gap ``soft_detect - soft_free`` at ``theta``, the bounds and the gradient in theta
+    (non-finite components set to 0)."""
     def gap(theta):
         b = bounds(apply(fdd_params, detector, theta, tune_pole), settings, data, temperature, dt_s, detector)
         return b["soft_detect"] - b["soft_free"], b
 
     (value, b), grad = jax.value_and_grad(gap, has_aux=True)(theta)
-    return value, b, grad
+    return value, b, jax.tree.map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grad)
 
 
 @partial(jax.jit, static_argnames=("dt_s", "detector"))
@@ -191,26 +177,21 @@ def evaluate(fdd_params, settings, data: TrainingSet, temperature, dt_s: float, 
 def threshold_scan(fdd_params, settings, data: TrainingSet, taus, dt_s: float, detector: str, identification: str):
     """False alarms (runs) and missed detections for each candidate threshold (K,), one jit.
 
-    Definitions of the campaign (DESIGN.md section 5): LOE bank (its threshold tau is the
-    signature's, so the identification level), a fault model identified before the fault and a
-    parametric fault without a fault model identified in the window; stall
-    detector, eta = 1 of the ``identification`` method ('signal' or 'model') outside stall loads
-    and a relevant stall event not identified within ``stall_window_s``. Returns (runs with a false
+    The monitors' verdicts (DESIGN.md section 5): LOE bank (its threshold tau is the signature's, so
+    the identification level), ``identification_false_alarm`` and a run that must be detected
+    without an identification in the window; stall detector, ``eta_false_<identification>`` and
+    ``stall_missed_<identification>`` (a relevant stall event not identified within
+    ``stall_window_s``), ``identification`` being 'signal' or 'model'. Returns (runs with a false
     alarm (K,), runs with a miss (K,)).
     """
     def at(tau):
-        def one(plant, v, h, truth):
-            return fdd_run(with_threshold(fdd_params, detector, tau), settings, plant, v, h, truth, 1.0, dt_s)[1]
-
-        out = jax.vmap(one)(data.plant, data.vcas_m_s, data.altitude_m, data.truth)
-        ok = out["status"] == campaign.Status.OK
+        columns = training_columns(with_threshold(fdd_params, detector, tau), settings, data, None, dt_s)
         if detector == "loe":
-            false = ok & jnp.isfinite(out["false_identification_time_s"])
-            missed = ok & data.counts & ~jnp.isfinite(out["identification_time_s"])
+            false = columns["identification_false_alarm"]
+            missed = columns["must_detect"] & ~jnp.isfinite(columns["identification_time_s"])
         else:
-            false = ok & (out[f"eta_outside_{identification}_time_s"] < data.truth.onset_s)
-            late = out[f"stall_worst_latency_{identification}_s"] > settings.stall_window_s
-            missed = ok & ((out["stall_events"] > out[f"stall_identified_{identification}"]) | late)
+            false = columns[f"eta_false_{identification}"]
+            missed = columns[f"stall_missed_{identification}"]
         return jnp.sum(false), jnp.sum(missed)
 
     return jax.lax.map(at, taus)
@@ -225,26 +206,15 @@ class Result(NamedTuple):
 
 
 def tune(gap_and_grad_fn, theta0: Tunable, iterations: int, learning_rate: float, callback=None) -> Result:
-    """Adam ascent of the smooth log gap. ``gap_and_grad_fn(theta)`` returns (gap, bounds, gradient);
-    ``callback(i, gap, bounds)`` sees every evaluation. Evaluations: iterations + 1."""
-    opt = standard_promotion(optax.adam(learning_rate))
-    theta = theta0
-    state = opt.init(theta)
-    thetas, gaps, all_bounds = [], [], []
-    for i in range(iterations + 1):
+    """Adam ascent of the smooth log gap (:func:`mcfdd.analysis.optimise.run`). ``gap_and_grad_fn(theta)``
+    returns (gap, bounds, gradient); ``callback(i, gap, bounds)`` sees every evaluation. Evaluations:
+    iterations + 1."""
+    def fn(theta):
         gap, b, grad = gap_and_grad_fn(theta)
-        b = {k: float(v) for k, v in b.items()}
-        thetas.append(theta)
-        gaps.append(float(gap))
-        all_bounds.append(b)
-        if callback is not None:
-            callback(i, float(gap), b)
-        if i == iterations:
-            break
-        grad = jax.tree.map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grad)
-        updates, state = opt.update(jax.tree.map(jnp.negative, grad), state, theta)
-        theta = optax.apply_updates(theta, updates)
-    return Result(thetas, np.asarray(gaps), all_bounds)
+        return float(gap), {k: float(v) for k, v in b.items()}, grad
+
+    trace = optimise.run(fn, theta0, optax.adam(learning_rate), iterations, maximize=True, callback=callback)
+    return Result(trace.params, np.asarray(trace.values), trace.aux)
 
 
 def normalised_gap(tau_f, tau_d):

@@ -7,21 +7,14 @@ Carlo as the cheap approximations. Here the closed loop and the FDD are differen
 worst case is searched by multi-start projected gradient ascent (Adam, optax) over the continuous
 scenario parameters, from the best points of a Sobol screening.
 
-Statistics, per detector, follow the campaign reductions (:mod:`mcfdd.analysis.campaign`) and
-:func:`mcfdd.report.gaps`:
-
-- stall detector, free: theta_stall outside stall loads, after the settling time, before any
-  fault; detect: per relevant stall event the peak of theta_stall within ``stall_window_s`` of
-  the onset, smallest over the run's events;
-- LOE bank, free: the fault-free filter's ratio theta_0 / ||u|| on excited samples before any
-  fault; detect: over the detection window, the peak of the smallest ratio among the filters that
-  must fire (those not accepted for the true fault).
-
-The hard values come from the campaign's own reductions, run in the same scan. For gradients the
-max and min are replaced by smooth ones on the logarithm of the statistic: an online log-sum-exp
-``T log sum exp(log(theta) / T)`` carried through the scan with a running shift (stable, and the
-shift does not enter the gradient), so the temperature T is relative (0.05: about 5 %) and the
-same for every detector. As T -> 0 the smooth values tend to the hard ones.
+Statistics are the scoring monitors' bounds (:data:`mcfdd.analysis.scoring.BOUNDS`: the stall
+detector's theta at the quiet samples and its least peak over relevant stall events; the LOE
+bank's fault-free ratio at the excited quiet samples and, over the detection window, the peak of
+the smallest ratio among the filters that must fire), run in the same scan as plant and FDD. The
+hard values are the campaign's columns; the search ascends their smooth versions, which the same
+monitors give with a temperature (a log-sum-exp on the logarithm of the statistic,
+:mod:`mcfdd.analysis.scoring.smooth`: T is relative, 0.05 about 5 %, and the same for every
+detector; as T -> 0 the smooth values tend to the hard ones).
 
 Search space: the ``range`` axes of a campaign's scenario space, mapped from the unit cube as
 :func:`mcfdd.analysis.scenarios.design_table` does (Vcas between its lower bound and the smaller of
@@ -46,140 +39,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from mcfdd.analysis import campaign, scenarios
-from mcfdd.analysis.simulate import run_keys, sample_time, scan_steps
-from mcfdd.compute import standard_promotion
+from mcfdd.analysis import optimise, scenarios, scoring, simulate
+from mcfdd.analysis.simulate import run_keys
 from mcfdd.fdd import system
 from mcfdd.plant import atmosphere, closed_loop, manoeuvres
-
-LOG_FLOOR = 1e-20  # statistics are floored here before the logarithm
-# campaign outcome holding the hard value of each (detector, bound); the LOE ones take filter 0
-HARD_OUTCOME = {("stall", "free"): "stall_theta_max_free", ("stall", "detect"): "stall_theta_peak_min",
-                ("loe", "free"): "ratio_max_pre", ("loe", "detect"): "others_min_peak"}
-
-
-# --------------------------------------------------------------------------------------------
-# Smooth extremes
-
-
-class SoftMax(NamedTuple):
-    """Online log-sum-exp: ``value = shift + T log(total)``, ``total = sum exp((x_i - shift) / T)``.
-
-    ``shift`` is the running maximum, held out of the gradient (the value does not depend on it).
-    """
-
-    shift: jnp.ndarray
-    total: jnp.ndarray
-
-
-def softmax_init(dtype) -> SoftMax:
-    return SoftMax(jnp.asarray(-jnp.inf, dtype), jnp.asarray(0.0, dtype))
-
-
-def softmax_step(acc: SoftMax, x, mask, temperature) -> SoftMax:
-    """Fold ``x`` into the accumulator where ``mask`` holds."""
-    x_in = jnp.where(mask, x, -jnp.inf)
-    shift = jax.lax.stop_gradient(jnp.maximum(acc.shift, x_in))
-    ref = jnp.where(jnp.isfinite(shift), shift, 0.0)
-    rescale = jnp.exp(jnp.where(jnp.isfinite(acc.shift), acc.shift - ref, -jnp.inf) / temperature)
-    term = jnp.where(mask, jnp.exp((jnp.where(mask, x, ref) - ref) / temperature), 0.0)
-    return SoftMax(shift, acc.total * rescale + term)
-
-
-def softmax_value(acc: SoftMax, temperature):
-    """Smooth maximum of the folded values; -inf if none was folded."""
-    some = acc.total > 0.0
-    return jnp.where(some, acc.shift + temperature * jnp.log(jnp.where(some, acc.total, 1.0)), -jnp.inf)
-
-
-def soft_max(x, mask, temperature, axis=-1):
-    """Smooth maximum over ``axis`` of the masked ``x`` (-inf where nothing is masked in)."""
-    shift = jax.lax.stop_gradient(jnp.max(jnp.where(mask, x, -jnp.inf), axis=axis, keepdims=True))
-    ref = jnp.where(jnp.isfinite(shift), shift, 0.0)
-    total = jnp.sum(jnp.where(mask, jnp.exp((jnp.where(mask, x, ref) - ref) / temperature), 0.0), axis=axis)
-    return softmax_value(SoftMax(jnp.squeeze(ref, axis), total), temperature)
-
-
-def soft_min(x, mask, temperature, axis=-1):
-    """Smooth minimum, ``-soft_max(-x)`` (+inf where nothing is masked in)."""
-    return -soft_max(-x, mask, temperature, axis)
-
-
-def log_stat(value):
-    """log of a non-negative statistic, floored at LOG_FLOOR."""
-    return jnp.log(jnp.maximum(value, LOG_FLOOR))
-
-
-# --------------------------------------------------------------------------------------------
-# Smooth statistics carried beside the campaign reductions
-
-
-class Soft(NamedTuple):
-    """Smooth counterparts of the campaign's bounds, in log units."""
-
-    stall_free: SoftMax
-    stall_event: SoftMax
-    stall_detect: SoftMax  # soft maximum of minus the event peaks: a soft minimum over events
-    loe_free: SoftMax
-    loe_detect: SoftMax
-
-
-def soft_init(dtype) -> Soft:
-    return Soft(*(softmax_init(dtype) for _ in Soft._fields))
-
-
-def soft_step(s: campaign.Settings, truth: campaign.Truth, temperature, acc: Soft, before: campaign.Reduction,
-              after: campaign.Reduction, t, plant: closed_loop.PlantOutputs, fdd: system.FddOutputs) -> Soft:
-    """Fold one sample, given the campaign reduction ``before`` and ``after`` this sample.
-
-    The sample masks are those of :func:`mcfdd.analysis.campaign.reduction_step`; events, their
-    onsets and their relevance are read from the reduction itself.
-    """
-    settled = t >= s.settle_s
-    clear_of_stall = ~plant.stall & (t - after.last_stall_end > s.stall_grace_s)
-    quiet = settled & (t < truth.onset_s) & clear_of_stall
-    closed_relevant = after.n_events > before.n_events
-    stall_detect = softmax_step(acc.stall_detect, -softmax_value(acc.stall_event, temperature), closed_relevant,
-                                temperature)
-    opening = after.in_event & ~before.in_event
-    event = jax.tree.map(lambda fresh, old: jnp.where(opening, fresh, old), softmax_init(acc.stall_event.total.dtype),
-                         acc.stall_event)
-    in_window = plant.stall & after.in_event & (t - after.event_start <= s.stall_window_s)
-    log_theta_stall = log_stat(fdd.theta_stall)
-
-    log_ratio = log_stat(fdd.theta / jnp.where(fdd.excited, fdd.theta_u, 1.0))
-    detect_window = (t >= truth.onset_s) & (t <= truth.onset_s + s.t_detec_s) & fdd.excited
-    must_fire = soft_min(log_ratio, ~truth.accept, temperature)
-    return Soft(
-        stall_free=softmax_step(acc.stall_free, log_theta_stall, quiet, temperature),
-        stall_event=softmax_step(event, log_theta_stall, in_window, temperature),
-        stall_detect=stall_detect,
-        loe_free=softmax_step(acc.loe_free, log_ratio[0], quiet & fdd.excited, temperature),
-        loe_detect=softmax_step(acc.loe_detect, must_fire, detect_window, temperature),
-    )
-
-
-def soft_finalize(acc: Soft, before: campaign.Reduction, outcomes: dict, temperature) -> dict:
-    """Smooth bounds of a run (log units) once the campaign has closed an event open at the end.
-
-    ``before`` is the reduction at the end of the scan, ``outcomes`` :func:`campaign.finalize` of it.
-    Keys ``stall_free``, ``stall_detect``, ``loe_free``, ``loe_detect``; -inf (free) or +inf
-    (detect) where the run has no sample that counts.
-    """
-    closed_relevant = outcomes["stall_events"] > before.n_events
-    stall_detect = softmax_step(acc.stall_detect, -softmax_value(acc.stall_event, temperature), closed_relevant,
-                                temperature)
-    return {"stall_free": softmax_value(acc.stall_free, temperature),
-            "stall_detect": -softmax_value(stall_detect, temperature),
-            "loe_free": softmax_value(acc.loe_free, temperature),
-            "loe_detect": softmax_value(acc.loe_detect, temperature)}
-
-
-def hard_value(outcomes: dict, detector: str, bound: str):
-    """The campaign's hard bound of a run (rod units for the stall detector, ratio for the LOE bank)."""
-    value = outcomes[HARD_OUTCOME[(detector, bound)]]
-    return value[..., 0] if (detector, bound) == ("loe", "free") else value
-
 
 # --------------------------------------------------------------------------------------------
 # Search space
@@ -205,6 +68,7 @@ class Anchor(NamedTuple):
     onset_jacobian: jnp.ndarray  # (d,)
     accept: jnp.ndarray  # (N,) acceptable identifications at x0
     altitude_m: jnp.ndarray  # altitude if it is not a continuous axis
+    nearest: jnp.ndarray | None = None  # nearest model at x0 (set by :func:`anchors_at`)
 
 
 def to_columns(box: Box, altitude_m, u):
@@ -324,29 +188,20 @@ class SearchSpace:
 
 
 # --------------------------------------------------------------------------------------------
-# One point: plant, FDD, campaign reductions and smooth bounds in one scan
+# One point: plant, FDD and the scoring monitors (hard and smooth) in one scan
 
 
-def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: campaign.Settings, box: Box,
+def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, settings: scoring.Settings, box: Box,
               anchor: Anchor, u, key, temperature, n_steps: int, dt_s: float, substeps: int,
               kinds: tuple[int, ...]):
-    """Simulate the scenario at u (d,). Returns (smooth bounds dict, campaign outcomes dict, columns (d,))."""
+    """Simulate the scenario at u (d,). Returns (the monitors' columns with their smooth versions, columns (d,))."""
     x = to_columns(box, anchor.altitude_m, u)
     scenario, onset = scenario_at(anchor, x)
-    truth = campaign.Truth(onset, anchor.accept)
-    params, carry = campaign.init_one(model, fdd_params, scenario, key, dt_s)
-
-    def body(carry, k, noise):
-        inner, acc = carry
-        new, out, fo = campaign.step_one(params, fdd_params, settings, scenario, truth, inner, k, noise, dt_s,
-                                         substeps, kinds)
-        t = sample_time(k, dt_s)
-        return (new, soft_step(settings, truth, temperature, acc, inner[2], new[2], t, out, fo)), None
-
-    ((_, _, red), acc), _ = scan_steps(body, (carry, soft_init(params.qbar_pa.dtype)), key, n_steps,
-                                       closed_loop.noise_dims(model)[1])
-    outcomes = campaign.finalize(settings, red, n_steps * dt_s)
-    return soft_finalize(acc, red, outcomes, temperature), outcomes, x
+    truth = scoring.Truth(onset, anchor.accept, anchor.nearest)
+    monitor = scoring.monitors(settings, truth, fdd_params, temperature)
+    state, _ = simulate.run(model, fdd_params, scenario, key, n_steps, dt_s, substeps, kinds,
+                            scoring.observer(settings, truth, monitor))
+    return scoring.finalize(settings, monitor, state, n_steps * dt_s), x
 
 
 STATIC = ("n_steps", "dt_s", "substeps", "kinds")
@@ -362,6 +217,11 @@ def evaluate(model, fdd_params, settings, box, anchors, u, keys, temperature, n_
     return jax.vmap(one)(anchors, u, keys)
 
 
+def smooth_column(detector: str, bound: str) -> str:
+    """The column of a bound's smooth logarithm."""
+    return f"smooth_log_{scoring.BOUNDS[(detector, bound)]}"
+
+
 def sense(bound: str) -> float:
     """+1 where the bound is a supremum (searched by ascent), -1 where it is an infimum."""
     return 1.0 if bound == "free" else -1.0
@@ -372,14 +232,14 @@ def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperatu
                    substeps: int, kinds: tuple[int, ...], detector: str, bound: str):
     """Score (smooth bound in log units, sign flipped for an infimum) and its gradient in u, per point.
 
-    Returns (score (P,), (smooth bounds, outcomes, columns), gradient (P, d)).
+    Returns (score (P,), (columns, x), gradient (P, d)).
     """
     def one(anchor, u, key):
         def score(u):
-            soft, outcomes, x = run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps,
-                                          dt_s, substeps, kinds)
-            value = sense(bound) * soft[f"{detector}_{bound}"]
-            return jnp.where(jnp.isfinite(value), value, -jnp.inf), (soft, outcomes, x)
+            columns, x = run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps, dt_s,
+                                   substeps, kinds)
+            value = sense(bound) * columns[smooth_column(detector, bound)]
+            return jnp.where(jnp.isfinite(value), value, -jnp.inf), (columns, x)
 
         (value, aux), grad = jax.value_and_grad(score, has_aux=True)(u)
         return value, aux, jnp.where(jnp.isfinite(grad), grad, 0.0)
@@ -387,51 +247,16 @@ def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperatu
     return jax.vmap(one)(anchors, u, keys)
 
 
-# --------------------------------------------------------------------------------------------
-# Projected gradient ascent
-
-
-class History(NamedTuple):
-    """Iterates of a multi-start ascent: u (I + 1, S, d), score (I + 1, S), aux per iteration."""
-
-    u: np.ndarray
-    score: np.ndarray
-    aux: list
-
-
-def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> History:
-    """Multi-start projected Adam ascent on [0, 1]^d with backtracking.
+def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> optimise.Trace:
+    """Multi-start projected Adam ascent on [0, 1]^d with backtracking (:func:`mcfdd.analysis.optimise.backtracking`).
 
     ``score_and_grad_fn(u)`` returns (score (S,), aux, gradient (S, d)) for the S starts u (S, d);
-    a score of -inf marks an infeasible point (e.g. no stall event left to measure): that start
-    returns to its best feasible point and halves its step, which grows back by half after each
-    feasible one (up to the Adam step). ``callback(i, score, aux)`` sees every evaluation.
+    a score of -inf marks an infeasible point. ``callback(i, score, aux)`` sees every evaluation.
     Evaluations: S (iterations + 1).
     """
-    opt = standard_promotion(optax.adam(learning_rate))
-    u = jnp.asarray(u0)
-    state = opt.init(u)
-    best_u, best = u, jnp.full(u.shape[0], -jnp.inf, u.dtype)
-    step = jnp.ones(u.shape[0], u.dtype)
-    us, scores, auxes = [], [], []
-    for i in range(iterations + 1):
-        score, aux, grad = score_and_grad_fn(u)
-        us.append(np.asarray(u))
-        scores.append(np.asarray(score))
-        auxes.append(aux)
-        if callback is not None:
-            callback(i, np.asarray(score), aux)
-        if i == iterations:
-            break
-        feasible = jnp.isfinite(score)
-        better = feasible & (score > best)
-        best_u = jnp.where(better[:, None], u, best_u)
-        best = jnp.where(better, score, best)
-        step = jnp.where(feasible, jnp.minimum(1.0, 1.5 * step), 0.5 * step)
-        updates, state = opt.update(-grad, state, u)
-        base = jnp.where(feasible[:, None], u, best_u)
-        u = optax.projections.projection_box(base + step[:, None] * updates, 0.0, 1.0)
-    return History(np.stack(us), np.stack(scores), auxes)
+    return optimise.run(score_and_grad_fn, jnp.asarray(u0), optimise.backtracking(learning_rate), iterations,
+                        maximize=True, project=lambda u: optax.projections.projection_box(u, 0.0, 1.0),
+                        callback=callback)
 
 
 def unit_points(space: SearchSpace, design: str, n: int, seed: int):
@@ -465,7 +290,7 @@ class Problem(NamedTuple):
 
     model: closed_loop.PlantModel
     fdd_params: system.FddParams
-    settings: campaign.Settings
+    settings: scoring.Settings
     space: SearchSpace
     nu_bank: np.ndarray
     detector: str
@@ -482,7 +307,7 @@ class Problem(NamedTuple):
 
 class Points(NamedTuple):
     """Evaluated points: u (P, d), categorical columns, column values x (P, d), the smooth and hard
-    bound (P,) in the statistic's units (rod m for the stall detector) and the campaign outcomes."""
+    bound (P,) in the statistic's units (rod m for the stall detector) and the monitors' columns."""
 
     u: np.ndarray
     categories: dict
@@ -498,15 +323,19 @@ def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
     n = np.shape(u)[0]
     cols = space.table(categories, np.zeros((n, space.dim)))
     altitude = np.asarray(cols.get("altitude_m", np.full(n, scenarios.DEFAULTS["altitude_m"])), dtype=problem.dtype)
-    x0 = jax.vmap(to_columns, in_axes=(None, 0, 0))(box, jnp.asarray(altitude), jnp.asarray(u, problem.dtype))
-    return space.anchors(categories, np.asarray(x0), problem.nu_bank, problem.dtype)
+    x0 = np.asarray(jax.vmap(to_columns, in_axes=(None, 0, 0))(box, jnp.asarray(altitude),
+                                                                jnp.asarray(u, problem.dtype)))
+    at_x0 = space.table(categories, x0)
+    nearest, _ = scenarios.true_model(problem.nu_bank, np.asarray(at_x0.get("fault_kind", np.full(n, "none"))),
+                                      np.asarray(at_x0.get("fault_size", np.zeros(n))))
+    return space.anchors(categories, x0, problem.nu_bank, problem.dtype)._replace(nearest=jnp.asarray(nearest))
 
 
-def _points(problem: Problem, u, categories, soft, outcomes, x) -> Points:
-    key = f"{problem.detector}_{problem.bound}"
-    outcomes = {k: np.asarray(v) for k, v in outcomes.items()}
-    return Points(np.asarray(u), categories, np.asarray(x), np.exp(np.asarray(soft[key], dtype=float)),
-                  np.asarray(hard_value(outcomes, problem.detector, problem.bound), dtype=float), outcomes)
+def _points(problem: Problem, u, categories, columns, x) -> Points:
+    columns = {k: np.asarray(v) for k, v in columns.items()}
+    return Points(np.asarray(u), categories, np.asarray(x),
+                  np.exp(np.asarray(columns[smooth_column(problem.detector, problem.bound)], dtype=float)),
+                  np.asarray(columns[scoring.BOUNDS[(problem.detector, problem.bound)]], dtype=float), columns)
 
 
 def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> Points:
@@ -519,12 +348,12 @@ def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> 
         padded = np.concatenate([idx, np.repeat(idx[-1:], batch - len(idx))])
         cats = {k: np.asarray(v)[padded] for k, v in categories.items()}
         anchors = anchors_at(problem, box, u[padded], cats)
-        soft, outcomes, x = evaluate(problem.model, problem.fdd_params, problem.settings, box, anchors,
-                                     jnp.asarray(u[padded], problem.dtype), keys[padded], problem.temperature,
-                                     **problem.static())
-        parts.append(jax.tree.map(lambda a: np.asarray(a)[:len(idx)], (soft, outcomes, x)))
-    soft, outcomes, x = jax.tree.map(lambda *a: np.concatenate(a), *parts)
-    return _points(problem, u, categories, soft, outcomes, x)
+        columns, x = evaluate(problem.model, problem.fdd_params, problem.settings, box, anchors,
+                              jnp.asarray(u[padded], problem.dtype), keys[padded], problem.temperature,
+                              **problem.static())
+        parts.append(jax.tree.map(lambda a: np.asarray(a)[:len(idx)], (columns, x)))
+    columns, x = jax.tree.map(lambda *a: np.concatenate(a), *parts)
+    return _points(problem, u, categories, columns, x)
 
 
 def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
@@ -535,11 +364,11 @@ def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: in
     box = problem.space.box(problem.dtype)
 
     def score_and_grad_fn(u):
-        anchors = anchors_at(problem, box, u, categories)
-        score, (soft, outcomes, x), grad = score_and_grad(
+        anchors = anchors_at(problem, box, np.asarray(u), categories)
+        score, (columns, x), grad = score_and_grad(
             problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype), keys,
             problem.temperature, detector=problem.detector, bound=problem.bound, **problem.static())
-        return score, _points(problem, u, categories, soft, outcomes, x), grad
+        return score, _points(problem, u, categories, columns, x), grad
 
     report = None if callback is None else (lambda i, score, points: callback(i, points))
     return ascend(score_and_grad_fn, u0, iterations, learning_rate, report).aux

@@ -17,6 +17,10 @@ rest is about 0.8 times the noise RMS, which varies from one position sensor to 
 A decoded model becomes a decision once it has been decoded without interruption for a
 confirmation time (the usual confirmation of industrial monitors; 0 s confirms at once), which
 keeps short noise-driven signatures from raising alarms.
+
+A confirmed decision also has a signed statistic (:func:`confirmed_margin`), on board like the
+decision itself, positive where the decision is confirmed: the scoring's false alarm and missed
+detection margins (DESIGN.md section 5a) are its extremes over their windows.
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ def noise_init(u0) -> NoiseState:
     return NoiseState(jnp.stack([u0, u0]), zero, zero, zero)
 
 
-def noise_step(state: NoiseState, u, gamma, dt_s: float):
+def noise_step(gamma, state: NoiseState, u, dt_s: float):
     """RMS of the position sensor's noise estimated online from the measured position u (m).
 
     The second difference ``u_k - 2 u_(k-1) + u_(k-2)`` is a high-pass that removes a held
@@ -78,7 +82,7 @@ def excitation_init(u0):
     return jnp.zeros_like(jnp.asarray(u0))
 
 
-def excitation_step(state, u_c, u, a, dt_s: float):
+def excitation_step(a, state, u_c, u, dt_s: float):
     """Low-passed magnitude of the measured tracking error, ``a/(s+a) |u_c - u|``, exact for the error
     held over the sample. Returns (new state, output).
 
@@ -93,6 +97,17 @@ def excitation_step(state, u_c, u, a, dt_s: float):
     """
     phi_a = jnp.exp(-a * dt_s)
     return phi_a * state + (1.0 - phi_a) * jnp.abs(u_c - u), state
+
+
+def relative(x, threshold, scale=1.0):
+    """Signed margin of ``x >= threshold`` relative to the threshold, ``(x - threshold) (scale / threshold)``
+    (absolute where the threshold is not positive): positive where x exceeds it, up to rounding."""
+    return (x - threshold) * (scale / jnp.where(threshold > 0, threshold, 1.0))
+
+
+def below(x, threshold, scale=1.0):
+    """Signed margin of ``x <= threshold``, ``(threshold - x) (scale / threshold)``, as :func:`relative`."""
+    return (threshold - x) * (scale / jnp.where(threshold > 0, threshold, 1.0))
 
 
 def signature(theta, theta_u, tau):
@@ -112,7 +127,7 @@ def confirm_init():
     return jnp.asarray(NO_DECISION, jnp.int32), jnp.asarray(0.0)
 
 
-def confirm_step(state, decoded, confirm_s, dt_s: float):
+def confirm_step(confirm_s, state, decoded, dt_s: float):
     """Returns (new state, confirmed model id or NO_DECISION)."""
     model, held = state
     held = jnp.where((decoded == model) & (decoded != NO_DECISION), held + dt_s, 0.0)
@@ -123,3 +138,26 @@ def confirm_step(state, decoded, confirm_s, dt_s: float):
 def threshold(theta, tau):
     """iota = [theta >= tau], eq. (25)."""
     return theta >= tau
+
+
+def confirmed_margin(confirm_s, scale, run_min, margin, decided, held, dt_s: float):
+    """Signed statistic of a confirmed decision, positive where it is confirmed (up to rounding). Returns
+    (new run minimum, statistic), in the units of ``margin``.
+
+    ``margin`` is the sample's signed margin of the decision (positive where it is decided, up to
+    rounding), ``decided`` the decision of the sample and ``held`` the time it has been held (the
+    state of :func:`confirm_step` after this sample, s). While decided, the
+    statistic is the smaller of the run minimum (the least margin over the current run of decided
+    samples) and the shortfall of the run against the confirmation time as a fraction of it, times
+    ``scale``: ``scale (held - (confirm_s - dt/2)) / max(confirm_s, dt)``; it turns positive when the
+    run is confirmed and stays positive while every sample of the run is decided. Undecided samples
+    score their own margin minus a whole confirmation's shortfall, so the statistic is continuous
+    where a run starts. Its sign differs from the confirmation only within rounding of zero (the
+    margins of the samples against the comparisons that decide them); the scoring makes it exact
+    (:mod:`mcfdd.analysis.scoring.loe`).
+    """
+    run_min = jnp.where(held > 0.0, jnp.minimum(run_min, margin), margin)
+    need = confirm_s - 0.5 * dt_s
+    per_s = scale / jnp.maximum(confirm_s, dt_s)
+    return run_min, jnp.where(decided, jnp.minimum(run_min, (held - need) * per_s),
+                              margin - jnp.maximum(need, 0.0) * per_s)

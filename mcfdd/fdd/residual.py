@@ -31,8 +31,9 @@ def init(u0):
     return -jnp.asarray(u0)
 
 
-def step(x_q, u, u_c, k, k0, a, dt_s: float):
-    """One sample of the filter(s); all arguments broadcast (a bank uses arrays over models).
+def step(k, k0, a, x_q, u, u_c, dt_s: float):
+    """One sample of the filter(s) with gain k, scaling gain k0 and pole a (1/s) from state x_q on the
+    measured position u and the command u_c (m); all arguments broadcast (a bank uses arrays over models).
 
     Returns (new state, residual r at the start of the step), r in the units of u.
     """

@@ -22,6 +22,11 @@ over at least ``window_s``: over a sample or two, position-sensor noise alone (0
 0.01 s is 5 mm/s) decides (33), and single-sample identifications followed. On
 ``configs/stall_campaign.toml`` this took eta = 1 outside stall loads from 20 of 8,192 runs to
 2 and the median identification latency from 0.05 s to 0.12 s.
+
+Each rule also has a signed margin relative to its threshold (``(x - threshold) / threshold``,
+positive where the rule holds up to rounding; :func:`mcfdd.fdd.decision.relative`), and eta of a method the least of
+its rules' margins: the scoring's false stall identification margin (DESIGN.md section 5a) is
+built from them.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from mcfdd.fdd import evaluator, residual
+from mcfdd.fdd import decision, evaluator, residual
 
 
 class SignalRules(NamedTuple):
@@ -58,24 +63,24 @@ class SignalState(NamedTuple):
     iota_prev: jnp.ndarray
 
 
-def large_signals(rules: SignalRules, u_c, u):
-    """Condition (34)."""
-    return (jnp.abs(u_c) >= rules.command_min_m) & (jnp.abs(u) >= rules.position_min_m)
+def conditions_margin(rules: SignalRules, u_c, u):
+    """Signed margin of conditions (34) and (35), the gate of both identification methods: the least of
+    |u_c| and |u| over their large-signal thresholds (34) and of the outward error sgn(u) (u_c - u)
+    over ``error_min_m`` (35), each relative (:func:`mcfdd.fdd.decision.relative`); the gate is open
+    where it is not negative (:func:`conditions`).
 
-
-def outward(rules: SignalRules, u_c, u):
-    """Condition (35), sgn(u_c - u) = sgn(u), with the error at least ``error_min_m``.
-
-    Without the margin, a rod resting on its command at a large deflection (e = 0 up to sensor
-    noise) would meet (35) on every other sample.
+    (35) is sgn(u_c - u) = sgn(u) with |u_c - u| at least ``error_min_m``, that is sgn(u) (u_c - u) >=
+    error_min_m for a positive ``error_min_m``. Without that margin a rod resting on its command at a
+    large deflection (e = 0 up to sensor noise) would meet (35) on every other sample.
     """
-    error = u_c - u
-    return (jnp.sign(error) == jnp.sign(u)) & (jnp.abs(error) >= rules.error_min_m)
+    large = jnp.minimum(decision.relative(jnp.abs(u_c), rules.command_min_m),
+                        decision.relative(jnp.abs(u), rules.position_min_m))
+    return jnp.minimum(large, decision.relative(jnp.sign(u) * (u_c - u), rules.error_min_m))
 
 
 def conditions(rules: SignalRules, u_c, u):
-    """Conditions (34) and (35) together: the gate of both identification methods."""
-    return large_signals(rules, u_c, u) & outward(rules, u_c, u)
+    """Conditions (34) and (35) together: :func:`conditions_margin` not negative."""
+    return conditions_margin(rules, u_c, u) >= 0.0
 
 
 def signal_init(u0) -> SignalState:
@@ -86,7 +91,8 @@ def signal_init(u0) -> SignalState:
 def signal_step(rules: SignalRules, state: SignalState, iota, gate, u, t_s, dt_s: float):
     """Rules (32)-(35) with the anchor logic of the module docstring; ``gate`` is :func:`conditions`.
 
-    Returns (new state, eta).
+    Returns (new state, eta, signed margin of rule (33): the lesser of the elapsed time over the window
+    and the mean rate under u_dot_min, relative).
     """
     rising = iota & ~state.iota_prev
     anchor_t = jnp.where(rising, t_s, state.anchor_t_s)
@@ -98,7 +104,9 @@ def signal_step(rules: SignalRules, state: SignalState, iota, gate, u, t_s, dt_s
     eta = iota & slow & gate
     moved = long_enough & (mean_rate > rules.rate_min_m_s)
     new = SignalState(jnp.where(moved, t_s, anchor_t), jnp.where(moved, u, anchor_u), iota)
-    return new, eta
+    margin = jnp.minimum(decision.relative(elapsed, rules.window_s - 0.5 * dt_s),
+                         decision.below(mean_rate, rules.rate_min_m_s))
+    return new, eta, margin
 
 
 class ModelState(NamedTuple):
@@ -112,7 +120,7 @@ def model_init(u0) -> ModelState:
 
 def model_step(rule: ModelRule, state: ModelState, iota, gate, u_c, u, dt_s: float):
     """Identification (a), gated by ``gate`` (:func:`conditions`). Returns (new state, eta, r_sl, theta_sl)."""
-    x_q, r_sl = residual.step(state.x_q, u, u_c, rule.k_sl, rule.k_sl, rule.pole, dt_s)
+    x_q, r_sl = residual.step(rule.k_sl, rule.k_sl, rule.pole, state.x_q, u, u_c, dt_s)
     xi, theta_sl = evaluator.step(rule.evaluator, state.xi, r_sl, dt_s)
     eta = iota & (theta_sl < rule.tau) & gate
     return ModelState(x_q, xi), eta, r_sl, theta_sl

@@ -123,6 +123,7 @@ class FddState(NamedTuple):
     error_lp: jnp.ndarray
     confirm: tuple
     detect: tuple
+    detect_min: jnp.ndarray  # least rejection margin over the current run of rejected samples
     since_stall: jnp.ndarray
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
@@ -135,6 +136,7 @@ class FddOutputs(NamedTuple):
     theta: jnp.ndarray  # (N,) evaluated residuals
     theta_u: jnp.ndarray  # ||u||, evaluated low-passed tracking error
     theta_w: jnp.ndarray  # the same weighted by the estimated load fraction (= theta_u without load weighting)
+    ratio: jnp.ndarray  # (N,) theta_i / ||u|| (theta_i where ||u|| = 0)
     load_fraction: jnp.ndarray  # estimated hinge-load fraction (residual evaluation stops above the limit)
     excited: jnp.ndarray  # ||u|| above the excitation floor: decisions are made
     noise_rms: jnp.ndarray | None  # online estimate of the position sensor's noise RMS (m; None: not built)
@@ -142,11 +144,17 @@ class FddOutputs(NamedTuple):
     decoded: jnp.ndarray  # model id of the signature, -1 for none
     detected: jnp.ndarray  # identification: confirmed model id, -1 for no decision
     fault_detected: jnp.ndarray  # detection: the fault-free model rejected, confirmed (an LOE fault is present)
+    # signed statistic of fault_detected, positive where it is set up to rounding (:func:`decision.confirmed_margin`)
+    detection_margin: jnp.ndarray
     r_stall: jnp.ndarray
     theta_stall: jnp.ndarray
     iota_stall: jnp.ndarray
     eta_signal: jnp.ndarray
     eta_model: jnp.ndarray
+    # signed margins of eta of each method, relative: the least of the detector's theta over tau, the
+    # gate (34)-(35) and rule (33) (signal) or theta_sl under tau_sl (model); positive where eta = 1 up to rounding
+    eta_signal_margin: jnp.ndarray
+    eta_model_margin: jnp.ndarray
     theta_sl: jnp.ndarray
 
 
@@ -183,6 +191,19 @@ def excitation_weight(loe: LoeParams, load):
     return jnp.where(f_ref > 0.0, jnp.minimum(1.0, jnp.abs(load) / jnp.where(f_ref > 0.0, f_ref, 1.0)), 1.0)
 
 
+def rejection_margin(loe: LoeParams, ratio0, contrast, theta_w, floor, since_stall):
+    """Signed margin of the rejection of the fault-free model, in units of theta / ||u||: the least of
+    ``theta_0 / ||u|| - detection_tau``, ``contrast - detection_contrast`` (contrast: theta_0 less the
+    smallest fault model's theta, over ||u||), and the excitation over its ``floor`` (the fixed floor, or
+    the one relative to the run's noise) and the time since
+    the last stall identification over ``stall_hold_s``, each relative
+    (:func:`mcfdd.fdd.decision.relative`) times ``detection_tau``. Positive where the sample rejects,
+    up to rounding."""
+    return jnp.minimum(jnp.minimum(ratio0 - loe.detection_tau, contrast - loe.detection_contrast),
+                       jnp.minimum(decision.relative(theta_w, floor, loe.detection_tau),
+                                   decision.relative(since_stall, loe.stall_hold_s, loe.detection_tau)))
+
+
 def init(params: FddParams, u0) -> FddState:
     """State for a start at rest (in equilibrium) at measured position u0."""
     n = params.loe.bank.k0.shape[0]
@@ -199,6 +220,7 @@ def init(params: FddParams, u0) -> FddState:
         error_lp=jnp.zeros_like(u0),
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
+        detect_min=jnp.zeros_like(u0),
         since_stall=jnp.asarray(jnp.inf, u0.dtype),
         stall_xq=residual.init(u0),
         stall_xi=jnp.zeros_like(u0),
@@ -223,12 +245,12 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
         valid = (jnp.abs(gated) <= loe.max_load_fraction) & valid
     running = valid & state.was_valid
     bank_xq = jnp.where(running, state.bank_xq, residual.init(u))
-    bank_xq, r = residual.step(bank_xq, u, u_c, k, bank.k0, loe.pole, dt_s)
+    bank_xq, r = residual.step(k, bank.k0, loe.pole, bank_xq, u, u_c, dt_s)
     r = once(r, params.one)
     bank_xi, theta = evaluator.step(loe.evaluator, state.bank_xi, r, dt_s)
     theta = once(theta, params.one)
     band = jnp.where(running, state.band, decision.excitation_init(u))
-    band, bp = decision.excitation_step(band, u_c, u, loe.pole, dt_s)
+    band, bp = decision.excitation_step(loe.pole, band, u_c, u, dt_s)
     band_xi, theta_u = once(evaluator.step(loe.evaluator, state.band_xi, bp, dt_s), params.one)
     if loe.excitation_load_fraction is None:
         band_w_xi, theta_w = None, theta_u
@@ -243,31 +265,42 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     if loe.excitation_noise_factor is None:
         noise, noise_rms = None, None
     else:
-        noise, noise_rms = once(decision.noise_step(state.noise, u, loe.noise_gamma, dt_s), params.one)
+        noise, noise_rms = once(decision.noise_step(loe.noise_gamma, state.noise, u, dt_s), params.one)
         ev = loe.evaluator
         floor = once(jnp.maximum(floor, loe.excitation_noise_factor * (ev.alpha + ev.beta / ev.gamma) * noise_rms),
                      params.one)
     excited = theta_w >= floor
-    stall_xq, r_stall = once(residual.step(state.stall_xq, u, u_c, k[0], bank.k0[0], stl.pole, dt_s), params.one)
+    stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, state.stall_xq, u, u_c, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
-    gate = once(stall.conditions(stl.signal, u_c, u), params.one)  # both methods' gate
-    signal, eta_signal = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
+    gate_margin = once(stall.conditions_margin(stl.signal, u_c, u), params.one)
+    gate = gate_margin >= 0.0  # both methods' gate, (34)-(35)
+    signal, eta_signal, slow = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
     model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
     eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
+    both = once(jnp.minimum(decision.relative(theta_stall, stl.tau), gate_margin), params.one)
+    eta_margins = (jnp.minimum(both, slow), jnp.minimum(both, decision.below(theta_sl, stl.model.tau)))
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
     stall_aware = since_stall <= loe.stall_hold_s
-    decoded = once(jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited)), params.one)
-    confirm, detected = decision.confirm_step(state.confirm, decoded, loe.confirm_s, dt_s)
+    decoded = jnp.where(stall_aware, decision.NO_DECISION, decision.decode(iota, excited))
+    confirm, detected = decision.confirm_step(loe.confirm_s, state.confirm, decoded, dt_s)
     detected = once(detected, params.one)
+    contrast = theta[0] - jnp.min(theta[1:])
     rejected = (excited & ~stall_aware & decision.signature(theta[0], theta_u, loe.detection_tau)
-                & decision.signature(theta[0] - jnp.min(theta[1:]), theta_u, loe.detection_contrast))
-    detect, fault = decision.confirm_step(state.detect, jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32),
-                                          loe.detection_confirm_s, dt_s)
+                & decision.signature(contrast, theta_u, loe.detection_contrast))
+    detect, fault = decision.confirm_step(loe.detection_confirm_s, state.detect,
+                                          jnp.where(rejected, 1, decision.NO_DECISION).astype(jnp.int32), dt_s)
+    fault = once(fault == 1, params.one)
+    per_u = 1.0 / jnp.where(theta_u > 0.0, theta_u, 1.0)
+    ratio = once(theta / jnp.where(theta_u > 0.0, theta_u, 1.0), params.one)
+    margin = once(rejection_margin(loe, ratio[0], contrast * per_u, theta_w, floor, since_stall), params.one)
+    detect_min, detection_margin = decision.confirmed_margin(loe.detection_confirm_s, loe.detection_tau,
+                                                             state.detect_min, margin, rejected, detect[1], dt_s)
+    detection_margin = once(detection_margin, params.one)
 
-    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, noise, valid, error_lp, confirm, detect, since_stall,
-                   stall_xq, stall_xi, signal, model)
-    return new, FddOutputs(r, theta, theta_u, theta_w, load, excited, noise_rms, iota, decoded, detected,
-                           once(fault == 1, params.one), r_stall,
-                           theta_stall, iota_stall, eta_signal, eta_model, theta_sl)
+    new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, noise, valid, error_lp, confirm, detect, detect_min,
+                   since_stall, stall_xq, stall_xi, signal, model)
+    return new, FddOutputs(r, theta, theta_u, theta_w, ratio, load, excited, noise_rms, iota, decoded, detected, fault,
+                           detection_margin, r_stall, theta_stall, iota_stall, eta_signal, eta_model, *eta_margins,
+                           theta_sl)

@@ -15,15 +15,16 @@ step at time t:
 
 Everything is written for one scenario; batches come from ``jax.vmap``.
 
-The full aircraft (``plant.aircraft.model = "rcam"``) lives in :mod:`mcfdd.plant.rcam_loop`;
-:func:`prepare`, :func:`init` and :func:`step` dispatch on the type of the model (static), so
-callers use one interface. Both return outputs with the Vcas and altitude the FDD schedules on
-(constant on the roll axis).
+The full aircraft (``plant.aircraft.model = "rcam"``) lives in :mod:`mcfdd.plant.rcam_loop` with
+the same three functions; :func:`loop` picks the pair of a model (the one dispatch on the type of
+the model, static), so callers use one interface. Both return outputs with the Vcas and altitude
+the FDD schedules on (constant on the roll axis).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -113,8 +114,6 @@ def build_model(actuator_params=actuator.ActuatorParams(), aircraft_params=aircr
 
 def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunParams:
     """Per-run parameters: uncertainties applied, gains scheduled, turbulence discretised."""
-    if isinstance(model, rcam_loop.RcamModel):
-        return rcam_loop.prepare(model, scenario, dt_s)
     act = scaled(model.actuator, scenario)
     qbar, _, tas = atmosphere.flight_condition(scenario.vcas_m_s, scenario.altitude_m)
     load = hinge.flight_point_slice(model.table, scenario.vcas_m_s, scenario.altitude_m) * scenario.hinge_scale
@@ -141,18 +140,8 @@ def prepare(model: PlantModel, scenario: Scenario, dt_s: float = DT_S) -> RunPar
     )
 
 
-def noise_dims(model) -> tuple[int, int]:
-    """(normals at the start, normals per step) of a model's runs (a model or its run parameters):
-    (3, 4) on the roll axis, (6, 7) on the full aircraft (six gust components)."""
-    if isinstance(model, (rcam_loop.RcamModel, rcam_loop.RcamRunParams)):
-        return rcam_loop.INIT_NOISE_DIM, rcam_loop.NOISE_DIM
-    return INIT_NOISE_DIM, NOISE_DIM
-
-
 def init(params: RunParams, noise) -> PlantState:
-    """Trimmed wings-level start; turbulence from its stationary distribution (:func:`noise_dims` normals)."""
-    if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.init(params, noise)
+    """Trimmed wings-level start; turbulence from its stationary distribution (INIT_NOISE_DIM normals)."""
     zero = jnp.zeros_like(params.qbar_pa)
     return PlantState(actuator.init(params.actuator, zero), aircraft.init(zero, zero), control_law.init() + zero,
                       turbulence.init(params.turbulence, noise))
@@ -160,12 +149,10 @@ def init(params: RunParams, noise) -> PlantState:
 
 def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, substeps: int = 2,
          kinds: tuple[int, ...] = tuple(range(len(manoeuvres.KINDS)))):
-    """One sample of the closed loop. ``noise`` holds the step's normals (:func:`noise_dims`).
+    """One sample of the closed loop. ``noise`` holds the step's NOISE_DIM normals.
 
     Returns (new state, :class:`PlantOutputs` at time ``t_s``).
     """
-    if isinstance(params, rcam_loop.RcamRunParams):
-        return rcam_loop.step(params, state, t_s, noise, dt_s, substeps, kinds)
     act = params.actuator
     noise = once(noise, params.one)  # the normals feed several fusions; drawn once
     pilot = once(manoeuvres.inputs(params.manoeuvre, t_s, kinds), params.one)
@@ -202,6 +189,30 @@ def step(params: RunParams, state: PlantState, t_s, noise, dt_s: float = DT_S, s
         altitude_m=params.altitude_m,
     )
     return PlantState(act_state, roll, integrator, gust_next), outputs
+
+
+class Loop(NamedTuple):
+    """The pure functions of one plant: ``prepare(model, scenario, dt_s) -> params``,
+    ``init(params, normals) -> state`` (``init_noise_dim`` normals) and ``step(params, state, t_s,
+    normals, dt_s, substeps, kinds) -> (state, outputs)`` (``noise_dim`` normals per step: (3, 4) on
+    the roll axis, (6, 7) on the full aircraft with its six gust components)."""
+
+    prepare: Callable
+    init: Callable
+    step: Callable
+    init_noise_dim: int
+    noise_dim: int
+
+
+LOOPS = {PlantModel: Loop(prepare, init, step, INIT_NOISE_DIM, NOISE_DIM),
+         rcam_loop.RcamModel: Loop(rcam_loop.prepare, rcam_loop.init, rcam_loop.step, rcam_loop.INIT_NOISE_DIM,
+                                   rcam_loop.NOISE_DIM)}
+
+
+def loop(model) -> Loop:
+    """The plant functions of ``model`` (a :class:`PlantModel` or a
+    :class:`~mcfdd.plant.rcam_loop.RcamModel`): the one place the aircraft is chosen."""
+    return LOOPS[type(model)]
 
 
 def deflection_deg(x_m, r_arm_m):

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from mcfdd import config, io, report
-from mcfdd.analysis import build, campaign, metrics, scenarios, simulate
+from mcfdd.analysis import build, campaign, metrics, scenarios, scoring, simulate
 from mcfdd.progress import bar, note
 from mcfdd.workflows import common
 from mcfdd.workflows.common import (
@@ -111,7 +111,7 @@ def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     kind = np.asarray(cols["fault_kind"])
     nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
     onset = scenarios.fault_onsets(cols, size)
-    truth = campaign.Truth(onset.astype(setup.dtype), accept)
+    truth = scoring.Truth(onset.astype(setup.dtype), accept, nearest)
     keys = simulate.run_keys(seed, padded if setup.plan.keys is None else setup.plan.keys[padded])
     return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, keys
 
@@ -156,15 +156,11 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
         cols, scen, truth, onset, nearest, keys = _chunk(setup, c.seed, ids, size)
         raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
                                  c.substeps, setup.kinds)
-        raw = {name: np.asarray(v)[:k] for name, v in raw.items()}
+        outc = scoring.table({name: np.asarray(v)[:k] for name, v in raw.items()}, onset[:k], nearest[:k],
+                             c.duration_s, cfg.evaluation.t_detec_s)
         cols = {name: np.asarray(v)[:k] for name, v in cols.items()}
-        # Scored at the campaign's precision too, so the table does not depend on the process's JAX settings.
-        outc = metrics.outcomes(raw, onset[:k], truth.accept[:k], nearest[:k], c.duration_s, cfg.evaluation.t_detec_s)
         table = {"scenario_id": ids, **cols, **outc}
         table.update(metrics.detectability_columns(cols, outc["peak_load_fraction"], setup.plan.ranges))
-    for i in range(len(setup.names)):
-        table[f"ratio_max_pre_{i}"] = raw["ratio_max_pre"][:, i]
-        table[f"ratio_min_post_{i}"] = raw["ratio_min_post"][:, i]
     return table
 
 

@@ -133,7 +133,7 @@ def compare(a, b, labels: tuple | None = None) -> CompareResult:
         for side, only in (("a", runs & event_a & ~event_b), ("b", runs & event_b & ~event_a)):
             discordant += [{"outcome": name, "scenario_id": int(i), "event_in": side} for i in ids[only]]
     times = []
-    detected = ok & metrics.faulty_runs(ta) & ta["detected"].to_numpy() & tb["detected"].to_numpy()
+    detected = ok & ta["must_detect"].to_numpy() & ta["detected"].to_numpy() & tb["detected"].to_numpy()
     kinds = ta["fault_kind"].to_numpy()
     for kind in ["all"] + sorted(set(kinds[detected])):
         rows_k = detected & ((kinds == kind) | (kind == "all"))

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from mcfdd import config, io, report
-from mcfdd.analysis import batch, build, campaign, scenarios, simulate, tuning
+from mcfdd.analysis import batch, build, scenarios, scoring, simulate, tuning
 from mcfdd.progress import bar, note
 from mcfdd.workflows.campaign import run_campaign
 from mcfdd.workflows.common import CompileCounter, as_config, dtype_of, load_bank, precision, save_figure
@@ -30,9 +30,9 @@ def training_set(cfg: config.CampaignConfig, model, bank, dtype):
     scen = scenarios.to_scenario(cols, dtype)
     plant = simulate.plant_batch(model, scen, simulate.run_keys(c.seed, range(n)), c.n_steps, c.dt_s, c.substeps,
                                  batch.kinds_in(scen.manoeuvre.kind))
-    truth = campaign.Truth(jnp.asarray(scenarios.fault_onsets(cols, n), dtype), jnp.asarray(accept))
-    counts = jnp.asarray(np.isin(kind, scenarios.PARAMETRIC) & (nearest > 0))
-    return tuning.TrainingSet(plant, scen.vcas_m_s, scen.altitude_m, truth, counts), n
+    truth = scoring.Truth(jnp.asarray(scenarios.fault_onsets(cols, n), dtype), jnp.asarray(accept),
+                          jnp.asarray(nearest))
+    return tuning.TrainingSet(plant, truth), n
 
 
 def tuned_fdd(fdd: config.FddConfig, detector: str, params: dict, tau: float, tune_pole: bool, deg_per_m: float):
@@ -195,17 +195,16 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
         ("gamma_1_s", old.evaluator.gamma_1_s, new.evaluator.gamma_1_s), ("pole_1_s", old.pole_1_s, new.pole_1_s),
         (tau_key, getattr(old, tau_key), getattr(new, tau_key)))])
 
-    campaigns, stall_taus, compiles = {}, {}, {}
+    campaigns, compiles = {}, {}
     start = time.perf_counter()
     for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
         note(f"held-out campaign, FDD {label} tuning", progress)
         with CompileCounter() as counter:
             campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
         compiles[label] = counter.count
-        stall_taus[label] = fdd_cfg.stall.tau_deg
     t_val = time.perf_counter() - start
-    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m, stall_taus,
-                                         cfg.evaluation.stall_window_s, cfg.fdd.stall.identification)
+    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
+                                         cfg.fdd.stall.identification)
     meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
     notes = [f"Tuning of the {det} detector by gradient through the FDD over {n} stored plant histories of "
              f"{tr.duration_s} s (training seed {tr.seed}; plant simulated once in {t_plant:.1f} s). Objective: smooth "
