@@ -9,7 +9,6 @@ Clopper-Pearson 95 % intervals.
 from __future__ import annotations
 
 import math
-import shlex
 
 import numpy as np
 import pandas as pd
@@ -191,8 +190,9 @@ def _interval(k, n, lo, hi):
     return f"{k}/{n} = {k / n:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
-def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict, folder=None) -> str:
-    """Human-readable campaign report; with the campaign's ``folder``, the command replaying the bounds' witnesses."""
+def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict,
+             replay: str = "") -> str:
+    """Human-readable campaign report; ``replay``: the command replaying the bounds' witnesses."""
     overall = summ[summ["stratum"] == "overall"].iloc[0]
     stalls = overall["stall_events"] > 0
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
@@ -226,10 +226,8 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     for _, r in gap.iterrows():
         lines.append(f"| {r['detector']} | {_fmt(r['tau_f'], 4)} | {r['tau_f_scenario_id']} | {_fmt(r['tau_d'], 4)} "
                      f"| {r['tau_d_scenario_id']} | {_fmt(r['gap'], 4)} | {r['units']} |")
-    witnesses = pd.unique(gap[["tau_f_scenario_id", "tau_d_scenario_id"]].to_numpy().ravel())
-    if folder is not None and (witnesses >= 0).any():
-        lines += ["", f"Replay these scenarios (time histories and a figure per run): "
-                  f"`{replay_command(folder, witnesses[witnesses >= 0])}`"]
+    if replay:
+        lines += ["", f"Replay these scenarios (time histories and a figure per run): `{replay}`"]
     lines += ["", "## Confusion: true (nearest) model against first identified fault model", "",
               "| true \\ decided | " + " | ".join(conf.columns) + " |", "|---" * (len(conf.columns) + 1) + "|"]
     for name, row in conf.iterrows():
@@ -469,39 +467,11 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def replay_command(folder, ids) -> str:
-    """The command that replays scenarios ``ids`` of the campaign in ``folder``, e.g.
-    ``mcfdd replay results/x --scenarios 481,3524``."""
-    return f"mcfdd replay {shlex.quote(str(folder))} --scenarios {','.join(str(int(i)) for i in ids)}"
-
-
-def with_replay(gap: pd.DataFrame, folder) -> pd.DataFrame:
-    """:func:`gaps` with the command replaying each bound's witness (``tau_f_replay``, ``tau_d_replay``; empty
-    where the bound has none)."""
-    gap = gap.copy()
-    for bound in ("tau_f", "tau_d"):
-        gap[f"{bound}_replay"] = [replay_command(folder, [i]) if i >= 0 else "" for i in gap[f"{bound}_scenario_id"]]
-    return gap
-
-
-def replay_line(row) -> str:
-    """One replayed scenario's verdicts (a row of its scenario table), as ``mcfdd replay`` prints them."""
-    def at(column):
-        return NA if not np.isfinite(row[column]) else f"{row[column]:.2f} s"
-
-    size = f" {row['fault_size']:.3g}" if row["fault_kind"] in FAULT_BANDS else ""
-    onset = "" if row["fault_kind"] == "none" else f" at {row['fault_onset_s']:.3g} s"
-    return (f"scenario {row['scenario_id']}: {row['fault_kind']}{size}{onset}, "
-            f"{row['manoeuvre_kind']}; false alarm {at('false_alarm_time_s')}, detection {at('detection_time_s')}, "
-            f"identified model {row['identified_model']} ({at('identification_time_s')}), largest fault-free ratio "
-            f"before the fault {_fmt(float(row['loe_ratio0_max_pre']))}, status {row['status']}")
-
-
 def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str = "the campaign's runs",
-                     top: int = 3, folder=None) -> str:
+                     top: int = 3, replay: str = "") -> str:
     """Section of summary.md: the top factors of the false alarms and misses (regional sensitivity of ``runs``,
-    :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses with the command replaying
-    them (the runs' folder ``folder``)."""
+    :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses (``replay``: the command
+    replaying them)."""
     lines = ["", "## What drives the false alarms and misses", "",
              f"Regional sensitivity of {runs} (no extra simulation): each parameter's values in the runs with the "
              "event against the others, ranked by the distance D (Kolmogorov-Smirnov for ranges, total variation "
@@ -520,9 +490,8 @@ def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str 
     for outcome, g in witnesses.groupby("outcome", sort=False):
         lines.append(f"- Worst {outcome.replace('_', ' ')} witnesses: " + ", ".join(
             f"scenario {r.scenario_id} ({r.measure} {r.value:.3g})" for r in g.itertuples()) + ".")
-    if len(witnesses) and folder is not None:
-        lines.append(f"- Replay the witnesses (time histories and a figure per run): "
-                     f"`{replay_command(folder, witnesses['scenario_id'].drop_duplicates())}`.")
+    if replay:
+        lines.append(f"- Replay the witnesses (time histories and a figure per run): `{replay}`.")
     return "\n".join(lines) + "\n"
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from mcfdd import config, io, report
 from mcfdd.progress import note
 from mcfdd.workflows import campaign as campaign_wf
-from mcfdd.workflows.common import OutputFolderError, as_config, check_folder, precision, save_figure
+from mcfdd.workflows.common import OutputFolderError, as_config, check_folder, precision, replay_command, save_figure
 from mcfdd.workflows.sensitivity import tables
 from mcfdd.workflows.sensitivity.study import NOISE, OUTCOMES, Design, design, outcome_names
 
@@ -197,7 +197,9 @@ def markdown(result: SensitivityResult, drawn, folder=None) -> str:
                   for _, g in result.screen.groupby(["outcome", "stratum"], sort=False)
                   for r in g.head(TOP).itertuples()]
         lines.append("")
-    lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs", folder=folder)]
+    ids = result.witnesses["scenario_id"].drop_duplicates()
+    lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs",
+                                      replay=replay_command(folder, ids) if folder is not None and len(ids) else "")]
     if result.notes:
         lines += ["## Notes", ""] + [f"- {n}." for n in result.notes] + [""]
     lines += ["## Figures", ""] + [f"- `{name}.png`: {PLOTS[name]}" for name in drawn]
