@@ -341,6 +341,12 @@ def test_the_report_replays_the_witnesses_of_the_design_runs(one_driver):
     assert command[2] == str(out) and ids == list(dict.fromkeys(result.witnesses["scenario_id"]))
     replayed = mcfdd.replay(command[2], ids, progress=False)
     assert replayed.differences() == []
+    frame = replayed.to_pandas()  # the histories are the same runs: detection begins at the campaign's alarm time
+    alarms = replayed.rows[replayed.rows["false_alarm"]]
+    assert len(alarms)
+    for _, row in alarms.iterrows():
+        g = frame[(frame["run"] == f"scenario-{row['scenario_id']}") & (frame["t_s"] >= 0.5)]
+        assert abs(g.loc[g["fault_detected"], "t_s"].iloc[0] - row["false_alarm_time_s"]) < 1e-4
     assert replayed.rows["kci_scale"].tolist() == result.runs.scenarios.set_index("scenario_id").loc[ids,
                                                                                                   "kci_scale"].tolist()
 
