@@ -30,7 +30,8 @@ import numpy as np
 import pandas as pd
 
 HERE = Path(__file__).resolve().parent.parent
-RATES = ("far", "loe_far", "mdr", "identification", "stall_rate_signal", "stall_rate_model")
+RATES = ("far_loe", "far_any", "false_identification_rate", "mdr", "identification", "stall_rate_signal",
+         "stall_rate_model")  # those named in both summaries are compared (bd337dd pooled "far" and "loe_far")
 
 
 def run(checkout: Path, config: str, scenarios: int, out: Path) -> float:
@@ -80,7 +81,7 @@ def compare_tables(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> list[str]:
 
 def compare_rates(a: pd.DataFrame, b: pd.DataFrame) -> list[str]:
     problems, checked = [], 0
-    rates = [r for r in RATES if all(f"{r}{end}" in a.columns for end in ("", "_lo", "_hi"))]
+    rates = [r for r in RATES if all(f"{r}{end}" in t.columns for end in ("", "_lo", "_hi") for t in (a, b))]
     merged = a.merge(b, on=["stratum", "label"], suffixes=("_a", "_b"))
     for _, row in merged.iterrows():
         for rate in rates:

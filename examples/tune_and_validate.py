@@ -33,5 +33,6 @@ held_out = {"campaign.scenarios": SCENARIOS, "campaign.seed": 99, "campaign.dura
 for label, fdd in (("before", {}), ("after", tuned_keys)):
     cfg = mcfdd.load_config(CONFIGS / "loe_campaign.toml", overrides={**held_out, **fdd})
     overall = mcfdd.run_campaign(cfg).overall()
-    print(f"{label} tuning: FAR {overall['false_alarms']}/{overall['runs']} "
-          f"[{overall['far_lo']:.3g}, {overall['far_hi']:.3g}], MDR {overall['missed']}/{overall['faulty_runs']}")
+    print(f"{label} tuning: FAR {overall['false_alarms_loe']}/{overall['fault_free_runs']} fault-free runs "
+          f"[{overall['far_loe_lo']:.3g}, {overall['far_loe_hi']:.3g}], "
+          f"MDR {overall['missed']}/{overall['faulty_runs']}")

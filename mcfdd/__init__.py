@@ -6,11 +6,12 @@ before JAX starts its backends; if JAX was started first, a warning says so and 
 has are used (same results, slower).
 
 The names below are re-exported from the modules that hold them, each imported on first use
-(PEP 562): ``import mcfdd`` and parsing a configuration (``mcfdd.config``) do not import JAX,
-so the command answers ``--help`` and refuses a bad configuration without starting it.
+(PEP 562): ``import mcfdd`` and parsing a configuration (``mcfdd.config``) do not import JAX, and
+``import mcfdd`` (and ``mcfdd --help``) loads none of the workflows until they are needed.
 """
 
 import importlib
+import importlib.util
 
 from mcfdd import devices as _devices  # noqa: F401  (first: sets XLA_FLAGS before JAX starts its backends)
 
@@ -19,7 +20,8 @@ __version__ = "0.1.0"
 _EXPORTS = {  # module -> the names it gives the public face
     "mcfdd.analysis.scoring": ("Status",),
     "mcfdd.config": ("ConfigError", "load_config"),
-    "mcfdd.workflows.campaign": ("CampaignResult", "OutputFolderError", "campaign_executor", "run_campaign"),
+    "mcfdd.workflows.campaign": ("CampaignResult", "campaign_executor", "run_campaign"),
+    "mcfdd.workflows.common": ("OutputFolderError",),
     "mcfdd.workflows.compare": ("CampaignMismatchError", "CompareResult", "compare"),
     "mcfdd.workflows.figures": ("FiguresResult", "paper_figures"),
     "mcfdd.workflows.fit_lpv": ("LpvFitResult", "fit_lpv"),
@@ -35,11 +37,14 @@ _RENAMED = {"dask_security": "security"}  # public name -> its name in its modul
 
 
 def __getattr__(name: str):
-    if name not in _MODULE:
-        raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_MODULE[name]), _RENAMED.get(name, name))
-    globals()[name] = value
-    return value
+    """A public name, imported from its module on first use (then cached here); or a submodule."""
+    if name in _MODULE:
+        value = getattr(importlib.import_module(_MODULE[name]), _RENAMED.get(name, name))
+        globals()[name] = value
+        return value
+    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module 'mcfdd' has no attribute {name!r}")
 
 
 def __dir__():

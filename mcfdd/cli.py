@@ -1,16 +1,15 @@
-"""The ``mcfdd`` command (the edge of the package): arguments -> the public API -> printed results."""
+"""The ``mcfdd`` command (the edge of the package): arguments -> the public API -> printed results.
+
+Arguments are parsed before anything heavy is imported: ``mcfdd --help`` and a bad flag load
+neither JAX nor the workflows; each command imports what it runs.
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from pathlib import Path
-
-import mcfdd
-from mcfdd import config, flags, io, report
-from mcfdd.workflows import common
 
 
 def _say(message: str):
@@ -27,64 +26,96 @@ def _written(paths):
         _say(f"wrote {path}")
 
 
+def _start_runtime():
+    """Import JAX and start its devices with Ctrl-C held meanwhile (:func:`mcfdd.interrupts.held`); each command
+    calls it once its configuration is read, so a mistake there is named without waiting for JAX."""
+    from mcfdd import interrupts
+
+    with interrupts.held():
+        import jax
+
+        jax.devices()
+
+
 def cmd_simulate(args) -> int:
-    result = mcfdd.simulate(mcfdd.load_config(args.config, "simulate"))
+    import mcfdd
+    from mcfdd import console, io
+
+    cfg = mcfdd.load_config(args.config, "simulate")
+    _start_runtime()
+    result = mcfdd.simulate(cfg)
     _written(result.save(io.out_dir("simulate", args.config, args.out)))
-    _print(report.simulate_lines(result.summary()))
+    _print(console.simulate_lines(result.summary()))
     return 0
 
 
 CAMPAIGN_FLAGS = ("scenarios", "seed", "chunk_size")  # flags that set the campaign.* key of their name
 
 
-def _campaign_config(args) -> config.CampaignConfig:
+def _campaign_config(args):
     """The campaign config with ``--set``, the campaign flags and the ``--fdd`` fragment; bad flags are named."""
+    import mcfdd
+    from mcfdd import flags
+
     given = {key: getattr(args, key, None) for key in CAMPAIGN_FLAGS}
     overrides = flags.campaign_overrides(getattr(args, "set", None), given, getattr(args, "fdd", None))
     return mcfdd.load_config(args.config, "campaign", overrides)
 
 
 def cmd_campaign(args) -> int:
+    import mcfdd
+    from mcfdd import console, interrupts, io
+
     cfg = _campaign_config(args)
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
     try:
+        _start_runtime()
         with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
                                      args.connect_timeout) as executor:
             result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
                                         executor=executor, compile_cache=args.compile_cache)
     except KeyboardInterrupt:
-        _say(f"\ninterrupted: finished chunks are kept in {out / 'scenarios'}; continue with --resume")
-        return 130
-    _print(report.campaign_lines(result.overall(), None if executor is None else result.workers))
+        kept = "finished chunks are kept in {}; continue with --resume".format(out / "scenarios")
+        _say(f"\nmcfdd: interrupted: {kept if (out / 'campaign.json').is_file() else 'nothing was written'}")
+        return interrupts.INTERRUPTED
+    _print(console.campaign_lines(result.overall(), None if executor is None else result.workers))
     print(f"summary: {out / 'summary.md'}")
     return 0
 
 
 def cmd_sensitivity(args) -> int:
+    import mcfdd
+    from mcfdd import flags, interrupts, io
+
     cfg = mcfdd.load_config(args.config, "campaign", flags.set_overrides(args.set))
     out = io.out_dir("sensitivity", args.config, args.out, new=not args.resume)
     try:
+        _start_runtime()
         with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
                                      args.connect_timeout) as executor:
             result = mcfdd.sensitivity(cfg, out=out, resume=args.resume, executor=executor,
                                        compile_cache=args.compile_cache)
     except KeyboardInterrupt:
-        _say(f"\ninterrupted: finished chunks are kept in {out / 'runs' / 'scenarios'}; continue with --resume")
-        return 130
+        _say(f"\nmcfdd: interrupted: finished chunks are kept in {out / 'runs' / 'scenarios'}; continue with --resume")
+        return interrupts.INTERRUPTED
     _print(result.lines())
     print(f"report: {out / 'report.md'}")
     return 0
 
 
 def cmd_replay(args) -> int:
-    out = io.out_dir("replay", args.campaign_dir, args.out)
+    import mcfdd
+    from mcfdd import flags, io
+
     result = mcfdd.replay(args.campaign_dir, flags.scenario_ids(args.scenarios))
-    _written(result.save(out))
+    _written(result.save(io.out_dir("replay", args.campaign_dir, args.out)))
     _print(result.lines())
     return 0
 
 
 def cmd_compare(args) -> int:
+    import mcfdd
+
     result = mcfdd.compare(args.campaign_a, args.campaign_b)
     out = Path(args.out) if args.out else Path("results") / f"compare-{'-vs-'.join(result.labels)}"
     result.save(out)
@@ -94,40 +125,63 @@ def cmd_compare(args) -> int:
 
 
 def cmd_fit_lpv(args) -> int:
-    result = mcfdd.fit_lpv(args.config)
+    import mcfdd
+    from mcfdd import console, io
+
+    cfg = mcfdd.load_config(args.config, "fit-lpv")
+    _start_runtime()
+    result = mcfdd.fit_lpv(cfg)
     _written(result.save(io.out_dir("fit-lpv", args.config, args.out)))
-    _print(report.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
+    _print(console.fit_lpv_lines(result.models, result.bank.k0, result.error_summary, result.distances))
     return 0
 
 
 def cmd_worst_case(args) -> int:
-    result = mcfdd.worst_case(args.config)
+    import mcfdd
+    from mcfdd import console, io
+
+    cfg = mcfdd.load_config(args.config, "worst-case")
+    _start_runtime()
+    result = mcfdd.worst_case(cfg)
     out = io.out_dir("worst-case", args.config, args.out)
     result.save(out, f"Worst case {Path(args.config).stem}")
-    _print(report.worst_case_lines(result.summary, result.value))
+    _print(console.worst_case_lines(result.summary, result.value))
     print(f"report: {out / 'report.md'}")
     return 0
 
 
 def cmd_tune(args) -> int:
+    import mcfdd
+    from mcfdd import console, io
+
     out = io.out_dir("tune", args.config, args.out, new=True)
     if out.exists() and any(out.iterdir()):
         raise mcfdd.OutputFolderError(f"--out: {out} exists and is not empty; choose another folder")
-    result = mcfdd.tune(args.config)
+    cfg = mcfdd.load_config(args.config, "tune")
+    _start_runtime()
+    result = mcfdd.tune(cfg)
     result.save(out)
-    _print(report.tune_lines(result.validation))
+    _print(console.tune_lines(result.validation))
     print(f"tuned FDD: {out / 'tuned_fdd.toml'}\nreport: {out / 'report.md'}")
     return 0
 
 
 def cmd_figures(args) -> int:
+    import mcfdd
+    from mcfdd import console
+
+    _start_runtime()
     result = mcfdd.paper_figures(args.configs)
     _written(result.save(Path(args.out) if args.out else Path("results") / "figures"))
-    _print(report.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
+    _print(console.figures_lines(result.sweep, result.grid, result.stall_events, result.eta_outside_s))
     return 0
 
 
 def cmd_schema(args) -> int:
+    import json
+
+    from mcfdd import config
+
     print(json.dumps(config.json_schema(args.kind), indent=1))
     return 0
 
@@ -174,7 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config key by its dotted path, e.g. --set fdd.loe.tau=0.12 (repeatable)")
+                   help="override a config key by its dotted path, e.g. --set fdd.loe.detection_tau=0.12 (the "
+                   "detection threshold; repeatable)")
     _cluster_flags(p)
     p = _command(sub, "sensitivity", cmd_sensitivity, "what drives the verdicts: Sobol' indices, gradient screen "
                  "and regional sensitivity over a campaign space ([sensitivity] table)", "fault_free.toml",
@@ -188,11 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
                  "results/compare-<a>-vs-<b>")
     p.add_argument("campaign_a", metavar="DIR_A", help="folder of the first campaign (mcfdd campaign --out)")
     p.add_argument("campaign_b", metavar="DIR_B", help="folder of the second campaign, same space and seed")
-    p = _command(sub, "replay", cmd_replay, "named scenarios of a finished or interrupted campaign again, as time "
-                 "histories and a figure per run (outcomes equal to the campaign's rows)", None,
-                 "results/replay-<campaign folder>")
-    p.add_argument("campaign_dir", metavar="CAMPAIGN_DIR", help="folder of the campaign (mcfdd campaign --out) or "
-                   "of a sensitivity analysis")
+    p = _command(sub, "replay", cmd_replay, "named scenarios of a campaign (or sensitivity) folder again: time "
+                 "histories and a figure per run", None, "results/replay-<folder>")
+    p.add_argument("campaign_dir", metavar="CAMPAIGN_DIR", help="folder of mcfdd campaign or mcfdd sensitivity")
     p.add_argument("--scenarios", required=True, metavar="IDS", help="comma-separated scenario ids, e.g. 481,3524")
     _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
@@ -204,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     _command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
              "campaign", "tune_stall.toml", "the first free results/tune-<config>[-N]")
     p = sub.add_parser("schema", help="print the JSON Schema of a config kind (for editors and validators)")
-    p.add_argument("kind", choices=list(config.KINDS), help="the config kind")
+    p.add_argument("kind", help="the config kind: simulate, campaign, fit-lpv, tune, worst-case or sweep")
     p.set_defaults(func=cmd_schema)
     return parser
 
@@ -214,17 +267,45 @@ def _one_line_warning(message, category, filename, lineno, line=None) -> str:
 
 
 def main(argv=None) -> int:
+    """Run the command of ``argv`` and return its exit status (0, 2 for a user's mistake, 130 interrupted).
+
+    ``argv`` None is this process's command line (the ``mcfdd`` command): an interrupt then ends the
+    process with status 130 right after its one line (:func:`mcfdd.interrupts.stop_now`), in whatever
+    phase it comes, and an interrupt Python would ignore is delivered again.
+    """
     warnings.formatwarning = _one_line_warning
     args = build_parser().parse_args(argv)
+    from mcfdd import interrupts
+
+    if argv is None:
+        sys.unraisablehook = interrupts.redeliver_ignored
+    code = _run(args)
+    if code == interrupts.INTERRUPTED and argv is None:
+        interrupts.stop_now(code)
+    return code
+
+
+def _run(args) -> int:
+    from mcfdd import interrupts
+
     try:
-        common.check_folder(getattr(args, "out", None), "--out")
-        return args.func(args)
-    except config.ConfigError as err:
-        print(f"mcfdd: configuration error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)
-        return 2
+        with interrupts.held():  # native modules imported (NumPy, pandas, Arrow; JAX if the config needs it)
+            from mcfdd import config
+            from mcfdd.workflows import common
+
+        try:
+            common.check_folder(getattr(args, "out", None), "--out")
+            return args.func(args)
+        except config.ConfigError as err:
+            kind = "" if isinstance(err, common.ResourceError) else "configuration error: "
+            print(f"mcfdd: {kind}{err}", file=sys.stderr)
+            return 2
+        except OSError as err:
+            print(f"mcfdd: {err.filename or 'file'}: {err.strerror or err}", file=sys.stderr)
+            return 2
+    except KeyboardInterrupt:
+        _say("\nmcfdd: interrupted")
+        return interrupts.INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -19,11 +19,13 @@ def set_overrides(pairs) -> dict:
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
         if not sep or not key.strip():
-            raise config.ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.tau=0.12")
+            raise config.ConfigError(f"--set: {pair!r} is not KEY=VALUE, e.g. fdd.loe.detection_tau=0.12")
         try:
             overrides[key.strip()] = tomllib.loads(f"value = {text}")["value"]
         except tomllib.TOMLDecodeError:
             overrides[key.strip()] = text
+        except RecursionError:
+            raise config.ConfigError(f"--set: the value of {key.strip()} is nested too deeply") from None
     return overrides
 
 

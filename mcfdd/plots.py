@@ -121,12 +121,13 @@ def flight_state(df: pd.DataFrame, title: str) -> Figure:
     return fig
 
 
-RATE_PANELS = {"far": ("false_alarms", "runs", "false-alarm rate (any alarm)"),
+RATE_PANELS = {"far_loe": ("false_alarms_loe", "fault_free_runs", "LOE false alarms per fault-free run"),
+               "far_any": ("false_alarms_any", "fault_free_runs", "any alarm (LOE, stall id.) per fault-free run"),
                "mdr": ("missed", "faulty_runs", "missed-detection rate")}
 
 
-def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far", "mdr")) -> Figure:
-    """Rates (``rates``: 'far', 'mdr') with their exact 95 % intervals for each label of one stratum.
+def rates_by_stratum(summ: pd.DataFrame, stratum: str, rates=("far_loe", "far_any", "mdr")) -> Figure:
+    """Rates (``rates``: keys of :data:`RATE_PANELS`) with exact 95 % intervals for each label of one stratum.
 
     Each panel has its own scale: logarithmic when a rate or bound lies below 0.1 (FAR of a few
     1e-3 stays readable), else linear from 0 to 1. A zero count is drawn as a bar up to its upper
@@ -185,31 +186,43 @@ def detection_times(df: pd.DataFrame, classes: pd.Series) -> Figure:
     return fig
 
 
-def _heat_map(ax, table: pd.DataFrame, xlabel: str, ylabel: str):
+def _heat_map(ax, table: pd.DataFrame, xlabel: str, ylabel: str, scaled=None):
+    """Counts of ``table``, each cell coloured by its share of its row over the ``scaled`` columns (default all);
+    the other columns are grey with their counts (e.g. "no decision", which would set the scale)."""
     values = table.to_numpy()
-    ax.imshow(values, cmap="Blues", vmin=0, vmax=max(int(values.max()), 1), aspect="auto")
+    scaled = list(table.columns) if scaled is None else list(scaled)
+    inside = np.isin(table.columns, scaled)
+    totals = values[:, inside].sum(axis=1, keepdims=True)
+    share = np.where(inside & (totals > 0), values / np.maximum(totals, 1), np.nan)
+    ax.imshow(np.ma.masked_invalid(share), cmap="Blues", vmin=0.0, vmax=1.0, aspect="auto")
+    for j in np.flatnonzero(~inside):
+        ax.axvspan(j - 0.5, j + 0.5, color="0.88", zorder=0)
+    ax.set_xlim(-0.5, values.shape[1] - 0.5)
+    ax.set_ylim(values.shape[0] - 0.5, -0.5)
     ax.set_xticks(range(table.shape[1]), table.columns, rotation=30, ha="right")
     ax.set_yticks(range(table.shape[0]), table.index)
     for (i, j), v in np.ndenumerate(values):
-        ax.text(j, i, str(v), ha="center", va="center", color="white" if v > values.max() / 2 else "black")
+        ax.text(j, i, str(v), ha="center", va="center", color="white" if share[i, j] > 0.5 else "black")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
 
 
 def confusion_matrix(conf: pd.DataFrame, stall: pd.DataFrame | None = None) -> Figure:
-    """Heat map of true against decided model counts; with ``stall`` (:func:`mcfdd.report.stall_confusion`)
-    a second one of stall loads, jammed rods and the other runs against eta = 1."""
-    width = 2.6 + 1.0 * conf.shape[1] + (0.0 if stall is None else 2.6 + 1.2 * stall.shape[1])
+    """Heat map of true against decided model counts, each cell coloured by its share of the row's identified
+    runs ("no decision" in grey, its count only); with ``stall`` (:func:`mcfdd.report.stall_confusion`) a second
+    one of stall loads, jammed rods and the other runs against eta = 1, coloured by share of the row."""
+    decided = [c for c in conf.columns if c != "no decision"]
+    width = max(4.6, 2.6 + 1.0 * conf.shape[1]) + (0.0 if stall is None else 2.6 + 1.2 * stall.shape[1])
     rows = max(conf.shape[0], 0 if stall is None else stall.shape[0])
     fig = Figure(figsize=(width, 3.0 + 0.45 * rows), constrained_layout=True)
     if stall is None:
-        _heat_map(fig.subplots(), conf, "decided model (identification)", "true (nearest) model")
-        return fig
-    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [conf.shape[1] + 1.5, stall.shape[1] + 1.5]})
-    _heat_map(left, conf, "decided model (identification)", "true (nearest) model")
-    _heat_map(right, stall, "stall identification", "truth")
-    left.set_title("LOE identification (runs)", fontsize=10)
-    right.set_title("stall identification (events; runs)", fontsize=10)
+        left = fig.subplots()
+    else:
+        left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [conf.shape[1] + 1.5, stall.shape[1] + 1.5]})
+        _heat_map(right, stall, "stall identification", "truth")
+        right.set_title("stall identification (events; runs)\ncolour: share of the row", fontsize=10)
+    _heat_map(left, conf, "decided model (identification)", "true (nearest) model", decided)
+    left.set_title("LOE identification (runs)\ncolour: share of the row's identified runs", fontsize=10)
     return fig
 
 

@@ -56,12 +56,39 @@ def envelope_bin(df: pd.DataFrame) -> pd.Series:
     return pd.Series(pd.Categorical(v.astype(str) + ", " + h.astype(str), categories=order), index=df.index)
 
 
-def _rates(group: pd.DataFrame) -> dict:
+# The summary columns scripts read (README lists them). False alarms are counted per fault-free run:
+# a faulty run can false-alarm only before its onset, so pooling it would dilute the rate.
+FALSE_ALARM_COLUMNS = ("fault_free_runs", "scored_fault_free_h",
+                       "false_alarms_loe", "far_loe", "far_loe_lo", "far_loe_hi", "far_loe_per_h", "far_loe_per_h_hi",
+                       "false_alarms_any", "far_any", "far_any_lo", "far_any_hi", "far_any_per_h", "far_any_per_h_hi",
+                       "false_identifications", "false_identification_rate", "false_identification_rate_lo",
+                       "false_identification_rate_hi")
+
+
+def _false_alarms(free: pd.DataFrame, scored_s: float | None) -> dict:
+    """False alarms of the fault-free runs ``free`` (valid, no fault): LOE detection, any alarm (LOE detection or
+    eta = 1 outside stall loads), false identification; rates per run with exact intervals, and per hour of scored
+    time (``scored_s`` per run: the run after its settling time; the per-hour bound is the per-run bound times the
+    runs over the hours)."""
+    hours = len(free) * scored_s / 3600.0 if scored_s else float("nan")
+    row = {"fault_free_runs": int(len(free)), "scored_fault_free_h": hours}
+    for name, flags in (("loe", free["false_alarm"].to_numpy()), ("any", metrics.any_false_alarm(free))):
+        r = metrics.rate(int(flags.sum()), len(free))
+        row.update({f"false_alarms_{name}": r["k"], f"far_{name}": r["rate"], f"far_{name}_lo": r["lo"],
+                    f"far_{name}_hi": r["hi"],
+                    f"far_{name}_per_h": r["k"] / hours if hours > 0 else float("nan"),
+                    f"far_{name}_per_h_hi": r["hi"] * len(free) / hours if hours > 0 else float("nan")})
+    fid = metrics.rate(int(free["false_identification"].sum()), len(free))
+    row.update({"false_identifications": fid["k"], "false_identification_rate": fid["rate"],
+                "false_identification_rate_lo": fid["lo"],
+                "false_identification_rate_hi": fid["hi"]})
+    return row
+
+
+def _rates(group: pd.DataFrame, scored_s: float | None) -> dict:
     ok = group["status"] == 0
+    free = group[ok & (group["fault_kind"] == "none")]
     faulty = group["must_detect"]
-    fa_any = pd.Series(metrics.any_false_alarm(group), index=group.index)
-    far = metrics.rate(int(fa_any.sum()), int(ok.sum()))
-    far_loe = metrics.rate(int(group["false_alarm"].sum()), int(ok.sum()))
     mdr = metrics.rate(int(group["missed"].sum()), int(faulty.sum()))
     identified = faulty & (group["identified_model"] >= 0)
     ident = metrics.rate(int((faulty & group["identified_correctly"]).sum()), int(identified.sum()))
@@ -71,15 +98,12 @@ def _rates(group: pd.DataFrame) -> dict:
     stall_sig = metrics.rate(int(group["stall_identified_signal"].sum()), events)
     stall_mod = metrics.rate(int(group["stall_identified_model"].sum()), events)
     return {
-        "runs": int(len(group)), "runs_failed": int((~ok).sum()),
-        "false_alarms": far["k"], "far": far["rate"], "far_lo": far["lo"], "far_hi": far["hi"],
-        "loe_false_alarms": far_loe["k"], "loe_far": far_loe["rate"], "loe_far_lo": far_loe["lo"],
-        "loe_far_hi": far_loe["hi"], "eta_false_alarms_signal": int((group["eta_false_signal"] & ok).sum()),
-        "eta_false_alarms_model": int((group["eta_false_model"] & ok).sum()),
+        "runs": int(len(group)), "runs_failed": int((~ok).sum()), **_false_alarms(free, scored_s),
+        "eta_false_alarms_signal": int(free["eta_false_signal"].sum()),
+        "eta_false_alarms_model": int(free["eta_false_model"].sum()),
         "faulty_runs": mdr["n"], "missed": mdr["k"], "mdr": mdr["rate"], "mdr_lo": mdr["lo"], "mdr_hi": mdr["hi"],
         "identified": ident["n"], "identified_correctly": ident["k"], "identification_accuracy": ident["rate"],
         "identification_lo": ident["lo"], "identification_hi": ident["hi"],
-        "false_identifications": int((group["false_identification"] & ok).sum()),
         "detection_time_median_s": times["median"], "detection_time_p95_s": times["p95"],
         "detection_time_max_s": times["max"], "identification_time_median_s": id_times["median"],
         "identification_time_max_s": id_times["max"],
@@ -90,20 +114,23 @@ def _rates(group: pd.DataFrame) -> dict:
         "stall_worst_latency_model_s": float(group["stall_worst_latency_model_s"].max()),
         "jammed_runs": int((ok & (group["fault_kind"] == "jamming")).sum()),
         "jam_taken_for_stall": int((ok & group["jam_taken_for_stall"]).sum()),
-        "fault_free_runs": int((ok & (group["fault_kind"] == "none")).sum()),
-        "loe_false_alarms_fault_free": int((ok & (group["fault_kind"] == "none") & group["false_alarm"]).sum()),
     }
 
 
-def summary(df: pd.DataFrame) -> pd.DataFrame:
+def summary(df: pd.DataFrame, scored_s: float | None = None) -> pd.DataFrame:
     """Rates per stratum (``overall``, ``fault``, ``envelope``, ``manoeuvre``, ``turbulence``) and, within it,
-    per ``label`` (fault class, envelope cell such as ``< 200 kt, 0-3 km``, ...). Tidy."""
+    per ``label`` (fault class, envelope cell such as ``< 200 kt, 0-3 km``, ...). Tidy.
+
+    False alarms and false identifications count the stratum's fault-free runs (:data:`FALSE_ALARM_COLUMNS`;
+    a stratum without any, such as a fault class, has none to count), with the hours of scored fault-free time
+    when ``scored_s`` (seconds scored per run: duration minus settling) is given; MDR and detection times its
+    faulty runs; eta counts (stall identification outside stall loads) its fault-free runs too."""
     strata = {"overall": pd.Series("all", index=df.index), "fault": fault_class(df), "envelope": envelope_bin(df),
               "manoeuvre": df["manoeuvre_kind"].astype(str), "turbulence": df["turbulence"].astype(str)}
     rows = []
     for stratum, labels in strata.items():
         for label, group in df.groupby(labels, sort=True, observed=True):
-            rows.append({"stratum": stratum, "label": str(label), **_rates(group)})
+            rows.append({"stratum": stratum, "label": str(label), **_rates(group, scored_s)})
     return pd.DataFrame(rows)
 
 
@@ -198,14 +225,21 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
              f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision {meta.get('git_revision')}.", "",
              "Rates with exact Clopper-Pearson 95 % intervals; n/a where there is nothing to count.", "",
-             "Detection (an LOE fault is present: the fault-free model rejected) gives FAR, MDR and detection "
-             "time; identification (the decoded signature, eq. 15) gives the identified runs, their accuracy "
-             "and time, and the confusion matrix."
+             "Detection (an LOE fault is present: the fault-free model rejected) gives false alarms, MDR and "
+             "detection time; identification (the decoded signature, eq. 15) gives the identified runs, their "
+             "accuracy and time, false identifications and the confusion matrix. False alarms count per "
+             "fault-free run (a faulty run can false-alarm only before its onset): LOE detection, any alarm (LOE "
+             "detection or a stall identification outside stall loads) and false identification; the overall "
+             f"row adds their rate per hour of scored fault-free time ({_fmt(overall['scored_fault_free_h'])} h: "
+             "each run after its settling time)."
              + ("" if stalls else " No stall load occurred in any run, so the table has no stall columns."), "",
-             "| stratum | runs | FAR (any) | LOE FAR | faulty | MDR | detection time median / p95 / max (s) "
+             f"Overall false alarms: LOE {per_hour_text(overall, 'loe')}, any alarm "
+             f"{per_hour_text(overall, 'any')}.", "",
+             "| stratum | runs | fault-free runs | LOE false alarms | any false alarm | false identifications "
+             "| faulty | MDR | detection time median / p95 / max (s) "
              "| identified: correct / runs | identification time median / max (s) "
              + ("| stall events | identified (signal) | identified (model) |" if stalls else "|"),
-             "|---" * (12 if stalls else 9) + "|"]
+             "|---" * (14 if stalls else 11) + "|"]
     for _, r in summ.iterrows():
         label = r["label"] if r["stratum"] == "overall" else f"{r['stratum']}: {r['label']}"
         stall_cells = (
@@ -213,9 +247,12 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
             f"| {_stall_cell(r['stall_identified_signal'], r['stall_events'], r['stall_worst_latency_signal_s'])} "
             f"| {_stall_cell(r['stall_identified_model'], r['stall_events'], r['stall_worst_latency_model_s'])} |"
             if stalls else "")
+        free, fid = r["fault_free_runs"], (r["false_identification_rate_lo"], r["false_identification_rate_hi"])
         lines.append(
-            f"| {label} | {r['runs']} | {_interval(r['false_alarms'], r['runs'], r['far_lo'], r['far_hi'])} "
-            f"| {_interval(r['loe_false_alarms'], r['runs'], r['loe_far_lo'], r['loe_far_hi'])} "
+            f"| {label} | {r['runs']} | {free} "
+            f"| {_interval(r['false_alarms_loe'], free, r['far_loe_lo'], r['far_loe_hi'])} "
+            f"| {_interval(r['false_alarms_any'], free, r['far_any_lo'], r['far_any_hi'])} "
+            f"| {_interval(r['false_identifications'], free, *fid)} "
             f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
             f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} | "
             f"{_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
@@ -302,7 +339,8 @@ def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value:
     return "\n".join(lines) + "\n"
 
 
-def validation_table(frames: dict, deg_per_m: float, identification: str) -> pd.DataFrame:
+def validation_table(frames: dict, deg_per_m: float, identification: str,
+                     scored_s: float | None = None) -> pd.DataFrame:
     """Held-out campaign outcomes side by side: one row per FDD setting (e.g. 'before', 'after').
 
     ``frames`` maps the setting to its campaign scenario table; ``stall_detector_fires`` counts runs
@@ -312,12 +350,11 @@ def validation_table(frames: dict, deg_per_m: float, identification: str) -> pd.
     """
     rows = []
     for label, df in frames.items():
-        overall = summary(df).query("stratum == 'overall'").iloc[0]
+        overall = summary(df, scored_s).query("stratum == 'overall'").iloc[0]
         gap = gaps(df, deg_per_m).set_index("detector")
         row = {"fdd": label, **{k: overall[k] for k in (
-            "runs", "false_alarms", "far", "far_lo", "far_hi", "loe_false_alarms", "loe_far", "loe_far_lo",
-            "loe_far_hi",
-            "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo", "mdr_hi", "identification_accuracy",
+            "runs", *FALSE_ALARM_COLUMNS, "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo",
+            "mdr_hi", "identification_accuracy",
             "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
             "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
             "stall_worst_latency_model_s")}, "stall_detector_fires": int(df["stall_false_detection"].sum()),
@@ -358,9 +395,14 @@ def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int,
               "|---" * (len(validation) + 1) + "|"]
     for name, cell in (
         ("runs", lambda r: str(r["runs"])),
-        ("FAR (any, incl. eta outside stall)",
-         lambda r: _interval(r["false_alarms"], r["runs"], r["far_lo"], r["far_hi"])),
-        ("LOE FAR", lambda r: _interval(r["loe_false_alarms"], r["runs"], r["loe_far_lo"], r["loe_far_hi"])),
+        ("fault-free runs", lambda r: str(r["fault_free_runs"])),
+        ("LOE false alarms (per fault-free run)",
+         lambda r: _interval(r["false_alarms_loe"], r["fault_free_runs"], r["far_loe_lo"], r["far_loe_hi"])),
+        ("any false alarm, incl. eta outside stall (per fault-free run)",
+         lambda r: _interval(r["false_alarms_any"], r["fault_free_runs"], r["far_any_lo"], r["far_any_hi"])),
+        ("false identifications (per fault-free run)",
+         lambda r: _interval(r["false_identifications"], r["fault_free_runs"], r["false_identification_rate_lo"],
+                             r["false_identification_rate_hi"])),
         ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
         ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
         ("detection time median / p95 / max (s)",
@@ -516,88 +558,11 @@ def stall_scoring_markdown(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-# The lines the ``mcfdd`` command prints after each command.
-
-def value_text(value, spec: str = ".3g", unit: str = "") -> str:
-    """``value`` formatted, or n/a where it does not exist (nan, None)."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+def per_hour_text(r: dict, name: str) -> str:
+    """False alarms ('loe' or 'any') per hour of scored fault-free time with the upper bound, or n/a."""
+    if not r["scored_fault_free_h"] > 0:
         return NA
-    return f"{value:{spec}}{unit}"
-
-
-def rate_text(r: dict, key: str) -> str:
-    """'rate [lo, hi]' of a summary row, or n/a when no run counts."""
-    if math.isnan(r[key]):
-        return NA
-    return f"{r[key]:.4g} [{r[f'{key}_lo']:.3g}, {r[f'{key}_hi']:.3g}]"
-
-
-def decisions_text(first: dict) -> str:
-    """First decision time of each fault model, e.g. 'pressure-loss-27 at 21.74 s'."""
-    return ", ".join(f"{model} at {t:.2f} s" for model, t in first.items()) or "none"
-
-
-def campaign_lines(overall: dict, workers: pd.DataFrame | None) -> list[str]:
-    """The overall rates of a campaign, and each worker's throughput when its chunks ran on workers."""
-    stalls = f", stall events {overall['stall_events']}" if overall["stall_events"] else ""
-    lines = [f"{overall['runs']} scenarios: FAR {rate_text(overall, 'far')}, MDR {rate_text(overall, 'mdr')}{stalls}"]
-    if workers is not None and len(workers):
-        lines.append(f"workers: {len(workers)}; " + ", ".join(
-            f"{w['worker']} {w['scenarios']} scen in {w['chunks']} chunk(s), {w['scenario_steps_per_s']:.3g} "
-            f"scenario-steps/s" for _, w in workers.iterrows()))
-    return lines
-
-
-def simulate_lines(summary: pd.DataFrame) -> list[str]:
-    return [f"{r['run']}: max |delta| {r['max_abs_delta_deg']:.2f} deg, stall {r['stall_s']:.2f} s, eta_stall "
-            f"{r['eta_stall_s']:.2f} s, first decisions {decisions_text(r['first_decisions_s'])}"
-            for _, r in summary.iterrows()]
-
-
-def fit_lpv_lines(models, k0, error_summary: dict, distances) -> list[str]:
-    """Each model's fit error (training and validation) and the smallest distances between neighbours."""
-    tr, va = error_summary["training"], error_summary["validation"]
-    lines = [f"{'model':<18s} {'k0 1/s':>7s}  {'training RMS / max %':>21s}  {'validation RMS / max %':>23s}  "
-             f"near-stall runs"]
-    lines += [f"{name:<18s} {float(k0[i]):7.3f}  {100 * tr['rms'][i]:10.3f} / {100 * tr['max'][i]:7.3f}  "
-              f"{100 * va['rms'][i]:12.3f} / {100 * va['max'][i]:7.3f}  {tr['near_stall_runs'][i]} / "
-              f"{va['near_stall_runs'][i]}" for i, name in enumerate(models)]
-    lines += ["smallest H-inf distance |k_j - k_i| / (k_i + k_j) of neighbouring models over the envelope grid",
-              "(overall; where the nonlinear models are at least 0.01 apart and keep the pressure margin):"]
-    lines += [f"  {models[d.i]:>18s} - {models[d.j]:<18s} {d.overall:.4f}   {d.separated:.4f} "
-              f"(nonlinear there {d.nonlinear:.4f})" for d in distances]
-    return lines
-
-
-def worst_case_lines(summ: pd.DataFrame, value: str) -> list[str]:
-    return [f"{r['method']}: {r['simulations']} simulations, {r['run_time_s']:.1f} s, worst "
-            f"{value_text(r[value], '.5g')}" for _, r in summ.iterrows()]
-
-
-def tune_lines(validation: pd.DataFrame) -> list[str]:
-    return [f"{r['fdd']}: FAR {r['false_alarms']}/{r['runs']}, LOE FAR {r['loe_false_alarms']}/{r['runs']}, MDR "
-            f"{r['missed']}/{r['faulty_runs']}, detection time median "
-            f"{value_text(r['detection_time_median_s'], unit=' s')}, stall detector above tau outside stalls in "
-            f"{r['stall_detector_fires']} runs" for _, r in validation.iterrows()]
-
-
-def figures_lines(sweep: pd.DataFrame, grid: dict, stall_events: pd.DataFrame, eta_outside_s: dict) -> list[str]:
-    """Fig. 4's decision per grid fault, Fig. 5's eta latencies and the eta time outside stall events."""
-    lines = []
-    for fam in ("surface", "leakage"):
-        rows = sweep[sweep["family"] == fam]
-        for v in grid[fam]:
-            row = rows.iloc[(rows["fault_size"] - v).abs().argmin()]
-            lines.append(f"fig4 {fam} {100 * row['fault_size']:.0f} %: decided {row['detected_model_name']}, first "
-                         f"fault model after {value_text(row['detection_time_s'], '.2f', ' s')}, "
-                         f"{row['switches']} switch(es)")
-    for _, e in stall_events.iterrows():
-        parts = [f"{m} none" if math.isnan(e[f"latency_{m}_s"]) else f"{m} {e[f'latency_{m}_s']:.2f} s"
-                 for m in ("signal", "model")]
-        lines.append(f"stall event {e['onset_s']:.2f}-{e['end_s']:.2f} s: eta latency " + ", ".join(parts))
-    lines += [f"eta ({method}) outside stall events: {seconds:.2f} s" for method, seconds in eta_outside_s.items()]
-    return lines
-
+    return f"{r[f'far_{name}_per_h']:.3g} per scored hour (< {r[f'far_{name}_per_h_hi']:.3g} at 95 %)"
 
 
 def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[str]:

@@ -4,10 +4,16 @@ tolerances.
 Test modules import from here (``from helpers import SMALL``), never from each other.
 """
 
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pandas as pd
+import psutil
 
+from mcfdd import cli
 from mcfdd.workflows.common import CompileCounter
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,3 +72,34 @@ def compiles(call) -> int:
     with CompileCounter() as counter:
         call()
     return counter.count
+
+
+def refused(capsys, *argv) -> str:
+    """Runs the command, checks it is refused with one line and no traceback; returns the line."""
+    code = cli.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith("mcfdd: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def interrupted(cfg, out, after: str, delay_s: float, *flags, children: list | None = None):
+    """``mcfdd campaign`` in its own process (``flags``, default ``--compile-cache off``), SIGINT ``delay_s`` after
+    the stderr line starting with ``after`` (None: after the start); ``children`` gets its child processes then."""
+    proc = subprocess.Popen([sys.executable, "-m", "mcfdd.cli", "campaign", str(cfg), "--out", str(out),
+                             *(flags or ("--compile-cache", "off"))], stderr=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, text=True)
+    seen = []
+    for line in proc.stderr if after is not None else ():
+        seen.append(line)
+        if line.startswith(after):
+            break
+    time.sleep(delay_s)
+    if children is not None:
+        children.extend(psutil.Process(proc.pid).children(recursive=True))
+    proc.send_signal(signal.SIGINT)
+    seen.append(proc.stderr.read())
+    proc.wait()
+    return proc.returncode, "".join(seen)

@@ -25,8 +25,8 @@ def run_cli(*argv):
 
 
 # The shipped false-alarm campaign, shortened: 320 scenarios of 2 s = 64 Sobol samples on each of the
-# 5 manoeuvre families. With 2 devices (conftest) chunks are padded to 128: chunk_size 128 runs
-# 3 chunks (128, 128, 64), 256 runs 2 (256, 64). A low tau_m gives false alarms to count.
+# 5 manoeuvre families. With 2 devices (conftest) chunk_size 128 runs 3 chunks (128, 128, 64), 256 runs
+# 2 (160, 160). A low tau_m gives false alarms to count.
 SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_size": 128, "evaluation.settle_s": 0.3,
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
 ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
@@ -63,7 +63,7 @@ def test_script_reruns_with_new_tau_without_compiling_and_matches_the_cli(in_mem
     assert len(second.scenarios) == N_SHORT and second.simulated == N_SHORT
     pd.testing.assert_frame_equal(second.scenarios, scenario_table(cli_run))
     assert len(list((cli_run / "scenarios").glob("part-*.parquet"))) == 3
-    assert second.overall()["false_alarms"] > first.overall()["false_alarms"], "a lower tau_m alarms more often"
+    assert second.overall()["false_alarms_any"] > first.overall()["false_alarms_any"], "a lower tau alarms more often"
 
 
 def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
@@ -87,8 +87,32 @@ def test_chunk_size_does_not_change_the_table(in_memory):
     chunks = []
     cfg = mcfdd.load_config(FAULT_FREE, overrides={**SHORT, **ALARMING, "campaign.chunk_size": 256})
     other = mcfdd.run_campaign(cfg, progress=False, on_chunk=chunks.append)
-    assert [len(c) for c in chunks] == [256, 64]
+    assert [len(c) for c in chunks] == [160, 160]
     pd.testing.assert_frame_equal(second.scenarios, other.scenarios)
+
+
+def test_chunks_are_evened_out_and_padded_only_to_whole_lanes(tmp_path, capsys):
+    """The shipped fault-free campaign (2,560 scenarios, chunk size 2,048) runs two chunks of 1,280 on four
+    devices, not 4,096 scenarios; ten scenarios run one chunk of 16 on one device; the status line says so."""
+    from mcfdd.workflows import campaign as runner
+
+    assert runner.LANE_BLOCK == 16
+    shipped = mcfdd.load_config(FAULT_FREE)
+    assert (shipped.campaign.scenarios, shipped.campaign.chunk_size) == (2560, 2048)
+    assert runner.chunk_size(2048, 2560, devices=4) == 1280
+    assert runner.chunk_size(2048, 10, devices=4) == 16 and runner.chunk_devices(16, 4) == 1
+    for n in (1, 10, 100, 2560, 16384):
+        for requested in (1, 64, 1000, 2048):
+            for devices in (1, 2, 4, 6):
+                size = runner.chunk_size(requested, n, devices)
+                chunks, fewest = -(-n // size), -(-n // min(requested, n))
+                used = runner.chunk_devices(size, devices)
+                assert size % (used * runner.LANE_BLOCK) == 0 and used == min(devices, size // runner.LANE_BLOCK)
+                assert chunks <= fewest  # no more chunks than the requested size makes
+                assert chunks * size - n < fewest * used * runner.LANE_BLOCK  # less than a lane block per device
+    ten = cli_flags({**SHORT, "campaign.scenarios": 10})
+    assert run_cli("campaign", FAULT_FREE, "--out", tmp_path / "ten", *ten) == 0
+    assert "10 to run in 1 chunk(s) of 16 (1 device(s) x 16; 6 padding scenarios)" in capsys.readouterr().err
 
 
 def test_interrupted_campaign_resumes_the_missing_scenarios_to_the_same_table(in_memory, tmp_path):
@@ -127,7 +151,7 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
     out = cli_run
     for name in ("summary.parquet", "confusion.parquet", "gaps.parquet", "detectability.parquet",
                  "scenarios/part-00000000.parquet"):
-        meta = cli.io.read_metadata(out / name)
+        meta = io.read_metadata(out / name)
         assert json.loads(meta["config"])["campaign"]["seed"] == 21
         assert meta["seed"] == "21" and meta["version"] and meta["git_revision"]
     summ = pd.read_parquet(out / "summary.parquet")
@@ -140,10 +164,10 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
         table["eta_false_signal_time_s"].to_numpy(), nan=np.inf))
     alarms = int((ok & np.isfinite(alarm_times)).sum())
     assert 0 < alarms < N_SHORT, "the low tau_m should alarm in some runs, not all"
-    assert overall["false_alarms"] == alarms
+    assert overall["fault_free_runs"] == N_SHORT and overall["false_alarms_any"] == alarms
     ref = binomtest(alarms, N_SHORT).proportion_ci(confidence_level=0.95, method="exact")
-    assert overall["far"] == pytest.approx(alarms / N_SHORT)
-    assert (overall["far_lo"], overall["far_hi"]) == pytest.approx((ref.low, ref.high), abs=1e-12)
+    assert overall["far_any"] == pytest.approx(alarms / N_SHORT)
+    assert (overall["far_any_lo"], overall["far_any_hi"]) == pytest.approx((ref.low, ref.high), abs=1e-12)
     assert (out / "summary.md").read_text().startswith("# Campaign fault_free")
     assert "## Detectability under the campaign's uncertainty" in (out / "summary.md").read_text()
     assert {"peak_load_fraction", "peak_deflection_deg", "qbar_kpa", "fault_distance", "uncertainty_distance",
@@ -156,7 +180,7 @@ def test_outputs_carry_provenance_and_the_far_counts_alarms(cli_run):
         assert not (out / png).exists()
         assert f"- `{png}` left out: no" in text
     assert (out / "stall_latency.png").exists() == (overall["stall_events"] > 0)
-    assert "(FAR only: no faulty runs, so no MDR panel)" in text
+    assert "(false alarms only: no faulty runs, so no MDR panel)" in text
     assert set(summ["stratum"]) == {"overall", "fault", "envelope", "manoeuvre", "turbulence"}
     assert "group" not in summ.columns
 

@@ -18,8 +18,8 @@ import pandas as pd
 import pytest
 
 import mcfdd
-from helpers import CONFIGS, SMALL, scenario_table
-from mcfdd import cli, io, report
+from helpers import CONFIGS, interrupted, refused, scenario_table, small_config
+from mcfdd import cli, console, io, report
 from mcfdd.analysis import build
 from mcfdd.workflows import campaign as campaign_workflow
 
@@ -28,15 +28,19 @@ N = 384
 
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
-    path = tmp_path_factory.mktemp("config") / "small.toml"
-    path.write_text(SMALL.format(n=N))
-    return path
+    return small_config(tmp_path_factory.mktemp("config"), N)
 
 
 @pytest.fixture(scope="module")
-def clean(small):
+def clean_result(small):
+    """The campaign from an uninterrupted in-memory run."""
+    return mcfdd.run_campaign(small, progress=False)
+
+
+@pytest.fixture(scope="module")
+def clean(clean_result):
     """The campaign's table from an uninterrupted in-memory run."""
-    return mcfdd.run_campaign(small, progress=False).scenarios
+    return clean_result.scenarios
 
 
 @pytest.fixture(scope="module")
@@ -45,17 +49,6 @@ def finished(small, tmp_path_factory):
     out = tmp_path_factory.mktemp("finished") / "c"
     assert cli.main(["campaign", str(small), "--out", str(out)]) == 0
     return out
-
-
-def refused(capsys, *argv) -> str:
-    """Runs the command, checks it is refused with one line and no traceback; returns the line."""
-    code = cli.main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("mcfdd: ")]
-    assert len(lines) == 1, err
-    return lines[0]
 
 
 def _binary(tmp_path, small):
@@ -139,9 +132,32 @@ def _read_only(tmp_path, small, monkeypatch):
     return [small], [str(tmp_path / "out"), os.strerror(errno.EROFS)]
 
 
+def _nested(tmp_path, small):
+    path = tmp_path / "nested.toml"
+    path.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    return [path], [str(path), "nested too deeply"]
+
+
+def _folder_as_config(tmp_path, small):
+    return [tmp_path], [str(tmp_path), "a folder, not a configuration file"]
+
+
+def _device_as_config(tmp_path, small):
+    return [os.devnull], [os.devnull, "not a regular file, not a configuration file"]
+
+
+def _nested_set(tmp_path, small):
+    return [small, "--set", "fdd.loe.tau=" + "[" * 5000 + "]" * 5000], ["--set", "nested too deeply"]
+
+
+def _compile_cache(tmp_path, small):
+    return [small, "--compile-cache", os.devnull + "/cache"], ["--compile-cache", os.devnull]
+
+
 CASES = {f.__name__[1:]: f for f in (_binary, _latin1, _missing, _out_onto_file, _seed, _scenarios, _chunk_size,
                                      _not_a_multiple, _settle, _manoeuvre_window, _onset, _empty_space,
-                                     _bad_fdd_file, _tls_without_scheduler, _tls_with_local_workers)}
+                                     _bad_fdd_file, _tls_without_scheduler, _tls_with_local_workers, _nested,
+                                     _folder_as_config, _device_as_config, _nested_set, _compile_cache)}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -156,9 +172,40 @@ def test_bad_input_is_refused_naming_it_before_any_folder_is_made(case, small, t
     assert not out.exists()
 
 
+def test_every_refusal_of_an_option_names_it_as_the_command_does(small, finished, tmp_path, capsys):
+    """One convention: an option is named as its flag (--out, --resume, --workers, --compile-cache, --scheduler),
+    whether the command or the library refused it; folder and machine limits are not called configuration errors."""
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    cases = [(["--out", target], "mcfdd: --out: "), (["--out", finished], "mcfdd: --out: "),
+             (["--out", tmp_path / "none", "--resume"], "mcfdd: --resume: "),
+             (["--out", tmp_path / "w", "--workers", 100000], "mcfdd: --workers: "),
+             (["--out", tmp_path / "c", "--compile-cache", target], "mcfdd: configuration error: --compile-cache: "),
+             (["--out", tmp_path / "s", "--scheduler", "tcp://127.0.0.1"], "mcfdd: --scheduler: ")]
+    for args, start in cases:
+        line = refused(capsys, "campaign", small, *args)
+        assert line.startswith(start), line
+    for call, start in ((lambda: mcfdd.run_campaign(small, out=target), "--out: "),
+                        (lambda: mcfdd.run_campaign(small, out=tmp_path / "none", resume=True), "--resume: ")):
+        with pytest.raises(mcfdd.OutputFolderError) as err:
+            call()
+        assert str(err.value).startswith(start)
+
+
+def test_simulate_refuses_a_manoeuvre_or_fault_after_the_end_of_the_run(tmp_path, capsys):
+    path = tmp_path / "late.toml"
+    for run, key in (('manoeuvre = { kind = "doublet", t_start_s = 25.0 }', "runs[1].manoeuvre.t_start_s"),
+                     ('fault = { kind = "leakage", size = 0.2, onset_s = 20.0 }', "runs[1].fault.onset_s")):
+        path.write_text('[simulation]\nduration_s = 20.0\n[[runs]]\nname = "ok"\n'
+                        f'[[runs]]\nname = "late"\n{run}\n')
+        line = refused(capsys, "simulate", path, "--out", tmp_path / "s")
+        assert f"{key}: the" in line and "at or after the end of the run (20.0 s, simulation.duration_s)" in line
+    assert not (tmp_path / "s").exists()
+
+
 def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
     args, named = _read_only(tmp_path, small, monkeypatch)
-    line = refused(capsys, "campaign", *args, "--out", tmp_path / "out")
+    line = refused(capsys, "campaign", *args, "--out", tmp_path / "out", "--compile-cache", "off")
     for text in named:
         assert text in line
 
@@ -166,7 +213,7 @@ def test_read_only_output_folder_is_named(small, tmp_path, capsys, monkeypatch):
 def test_an_in_process_campaign_prints_no_workers_line(small, tmp_path, capsys):
     assert cli.main(["campaign", str(small), "--out", str(tmp_path / "c")]) == 0
     out = capsys.readouterr().out
-    assert f"{N} scenarios: FAR " in out and "summary: " in out
+    assert f"{N} scenarios (" in out and "false alarms per fault-free run: LOE " in out and "summary: " in out
     assert "workers:" not in out
 
 
@@ -191,6 +238,7 @@ def test_full_disk_mid_run_is_named_and_resume_completes_the_table(small, clean,
     monkeypatch.setattr(io, "write_table", disk_full_at_second_part)
     line = refused(capsys, "campaign", small, "--out", out)
     assert str(calls[1]) in line and os.strerror(errno.ENOSPC) in line and "--resume" in line
+    assert line.startswith("mcfdd: --out: cannot write")  # a full disk is not a configuration error
     monkeypatch.setattr(io, "write_table", write_table)
     assert [p.name for p in (out / "scenarios").glob("*.parquet")] == [calls[0].name]
     assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0
@@ -283,8 +331,178 @@ def test_printed_text_says_n_a_where_a_value_does_not_exist(clean):
     assert "nan" not in text and "n/a" in text
     assert "stall events" not in text and "worst" not in text  # no stall columns without a stall load
     overall = summ[summ["stratum"] == "overall"].iloc[0].to_dict()
-    assert report.rate_text(overall, "mdr") == "n/a"
-    assert report.rate_text(overall, "far").startswith(f"{overall['far']:.4g} [")
-    assert report.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
-    assert report.decisions_text({}) == "none"
-    assert report.value_text(float("nan"), ".2f", " s") == "n/a" and report.value_text(1.234, ".2f", " s") == "1.23 s"
+    assert console.rate_text(overall, "mdr") == "n/a"
+    assert console.rate_text(overall, "far_loe").startswith(f"{overall['far_loe']:.4g} [")
+    assert console.decisions_text({"pressure-loss-27": 21.740000000000002}) == "pressure-loss-27 at 21.74 s"
+    assert console.decisions_text({}) == "none"
+    assert console.value_text(float("nan"), ".2f", " s") == "n/a" and console.value_text(1.234, ".2f", " s") == "1.23 s"
+
+
+STARTUP = """
+import sys
+from mcfdd import cli
+try:
+    code = cli.main(sys.argv[1:])
+except SystemExit as exit:
+    code = exit.code
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("jax", "jaxlib", "numpy", "pandas", "pyarrow", "pydantic",
+                                                            "matplotlib", "distributed")
+               or m.startswith("mcfdd.") and m not in ("mcfdd.cli", "mcfdd.devices"))
+print(code, heavy)
+"""
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["campaign", "--help"], ["schema", "--help"], ["nothing"],
+                                  ["campaign", "x.toml", "--bogus"], ["campaign", "x.toml", "--scenarios", "many"],
+                                  ["campaign", "x.toml", "--workers", "2", "--scheduler", "tls://h:1"]])
+def test_help_and_argument_errors_load_neither_jax_nor_the_workflows(argv):
+    """The command parses its arguments before it imports what it runs (start-up in a fraction of a second)."""
+    proc = subprocess.run([sys.executable, "-c", STARTUP, *argv], capture_output=True, text=True, check=True)
+    code, heavy = proc.stdout.splitlines()[-1].split(" ", 1)
+    assert code == ("0" if "--help" in argv else "2"), proc.stderr
+    assert heavy.strip() == "[]", heavy
+
+
+def test_the_public_names_import_on_first_use():
+    """``import mcfdd`` is light; each public name resolves to the object of the module that holds it."""
+    code = ("import sys, mcfdd; light = 'jax' not in sys.modules; from mcfdd.workflows import campaign; "
+            "print(light, mcfdd.run_campaign is campaign.run_campaign, sorted(set(mcfdd.__all__) - set(dir(mcfdd))))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.split() == ["True", "True", "[]"], proc.stdout + proc.stderr
+
+
+def test_schema_help_names_every_config_kind(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["schema", "--help"])
+    helped = " ".join(capsys.readouterr().out.split())
+    assert all(kind in helped for kind in mcfdd.config.KINDS)
+    line = refused(capsys, "schema", "nothing")
+    assert "kind: 'nothing'" in line
+
+
+@pytest.mark.parametrize("delay_s", [0.5, 2.0, 4.0, 6.0])
+def test_ctrl_c_while_compiling_exits_with_130(small, tmp_path, delay_s):
+    """SIGINT while XLA compiles the chunk program (compilation cache off: about 15 s here): status 130 and
+    the one line, never a crash of the runtime's teardown under a compilation still running."""
+    code, err = interrupted(small, tmp_path / "c", "campaign: ", delay_s)
+    assert code == 130, err
+    assert "Traceback" not in err
+    assert "mcfdd: interrupted" in err, err
+
+
+@pytest.mark.parametrize("delay_s", [0.5, 1.0, 1.5, 2.5])
+def test_ctrl_c_while_starting_exits_with_130(small, tmp_path, delay_s):
+    """SIGINT before the campaign starts (imports, configuration): status 130, one line, no folder made. While
+    JAX is imported, the interrupt often lands in its garbage-collection callback, where Python ignores it."""
+    code, err = interrupted(small, tmp_path / "c", None, delay_s)
+    assert code == 130 and "Traceback" not in err and "Exception ignored" not in err, err
+    assert "mcfdd: interrupted" in err
+    assert not (tmp_path / "c").exists() or "continue with --resume" in err
+
+
+def _files(folder) -> dict:
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_save_never_merges_into_another_campaign(small, finished, tmp_path):
+    """Saving a result of another configuration into a campaign's folder is refused and changes nothing."""
+    other = mcfdd.run_campaign(mcfdd.load_config(small, overrides={"campaign.seed": 8}), progress=False)
+    target = tmp_path / "d"
+    shutil.copytree(finished, target)
+    before = _files(target)
+    with pytest.raises(mcfdd.OutputFolderError, match=f"--out: {target} exists and is not empty"):
+        other.save(target)
+    assert _files(target) == before
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / "notes.txt").write_text("mine")
+    with pytest.raises(mcfdd.OutputFolderError, match="not empty"):
+        other.save(tmp_path / "e")
+    assert [p.name for p in (tmp_path / "e").iterdir()] == ["notes.txt"]
+
+
+def test_save_onto_a_file_is_the_one_line_error(clean_result, tmp_path):
+    target = tmp_path / "a-file"
+    target.write_text("keep me")
+    with pytest.raises(mcfdd.OutputFolderError, match=f"--out: {target} exists and is not a folder"):
+        clean_result.save(target)
+    assert target.read_text() == "keep me"
+
+
+def test_save_completes_its_own_campaign_but_not_other_chunks_of_it(small, clean_result, finished, tmp_path):
+    """The same campaign may be saved into its folder (the same parts, bit for bit); parts of another chunking
+    would make a table with repeated scenarios, so that is refused."""
+    target = tmp_path / "same"
+    shutil.copytree(finished, target)
+    before = _files(target)
+    clean_result.save(target)
+    after = _files(target)
+    parts = {k: v for k, v in before.items() if k.parts[0] == "scenarios"}
+    assert {k: after[k] for k in parts} == parts
+    rechunked = mcfdd.run_campaign(mcfdd.load_config(small, overrides={"campaign.chunk_size": 256}), progress=False)
+    with pytest.raises(mcfdd.OutputFolderError, match="parts of this campaign in other chunks"):
+        rechunked.save(target)
+    busy = io.lock_folder(target)
+    try:
+        with pytest.raises(mcfdd.OutputFolderError, match="in use"):
+            clean_result.save(target)
+    finally:
+        busy.release()
+
+
+def test_a_deleted_campaign_json_is_rebuilt_on_resume(small, clean, finished, tmp_path, capsys):
+    """The parts carry the resolved configuration: ``--resume`` rebuilds campaign.json from it, still refuses a
+    changed configuration naming the key, and completes the table."""
+    out = tmp_path / "c"
+    shutil.copytree(finished, out)
+    original = (out / "campaign.json").read_text()
+    parts = sorted((out / "scenarios").glob("part-*.parquet"))
+    parts[-1].unlink()
+    (out / "campaign.json").unlink()
+    line = refused(capsys, "campaign", small, "--out", out, "--resume", "--seed", 3)
+    assert "campaign.seed was 7, now 3" in line
+    assert (out / "campaign.json").read_text() == original
+    (out / "campaign.json").unlink()
+    assert cli.main(["campaign", str(small), "--out", str(out), "--resume"]) == 0
+    assert "rebuilt from the configuration the parts carry" in capsys.readouterr().err
+    assert (out / "campaign.json").read_text() == original
+    pd.testing.assert_frame_equal(scenario_table(out), clean, check_exact=True)
+
+
+def test_resume_without_anything_to_rebuild_from_says_how(small, tmp_path, capsys):
+    (tmp_path / "c").mkdir()
+    line = refused(capsys, "campaign", small, "--out", tmp_path / "c", "--resume")
+    assert "campaign.json missing and no scenario part to rebuild it from" in line and "without --resume" in line
+
+
+def test_false_alarms_are_counted_per_fault_free_run_loe_and_any_apart(small, tmp_path, capsys):
+    """A faulty run can false-alarm only before its onset: the rates count the fault-free runs alone (LOE
+    detection, any alarm, false identification), per run and per hour of scored time, in the table, the printed
+    lines and summary.md."""
+    alarming = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
+                "fdd.loe.confirm_s": 0.0, "fdd.loe.excitation_floor_deg": 0.005}
+    out = tmp_path / "c"
+    assert cli.main(["campaign", str(small), "--out", str(out),
+                     *[a for k, v in alarming.items() for a in ("--set", f"{k}={v}")]]) == 0
+    printed = capsys.readouterr().out
+    table = pd.read_parquet(out / "scenarios")
+    ok = table["status"] == 0
+    free = table[ok & (table["fault_kind"] == "none")]
+    before_onset = table[ok & (table["fault_kind"] != "none") & table["false_alarm"]]
+    assert len(before_onset) > 0, "faulty runs that alarm before their onset (so pooling would change the rate)"
+    loe, any_alarm = int(free["false_alarm"].sum()), int((free["false_alarm"] | free["eta_false_signal"]).sum())
+    identifications = int(free["false_identification"].sum())
+    overall = pd.read_parquet(out / "summary.parquet").query("stratum == 'overall'").iloc[0]
+    hours = len(free) * (4.0 - 0.5) / 3600.0
+    assert (overall["fault_free_runs"], overall["false_alarms_loe"], overall["false_alarms_any"],
+            overall["false_identifications"]) == (len(free), loe, any_alarm, identifications)
+    assert overall["far_loe"] == pytest.approx(loe / len(free)) and overall["far_any"] == pytest.approx(
+        any_alarm / len(free))
+    assert overall["scored_fault_free_h"] == pytest.approx(hours) and overall["far_loe_per_h"] == pytest.approx(
+        loe / hours)
+    assert not {"far", "far_lo", "far_hi", "loe_far", "false_alarms", "loe_false_alarms"} & set(overall.index)
+    assert f"false alarms per fault-free run: LOE {loe}/{len(free)} = " in printed
+    assert f"any alarm (LOE or stall identification) {any_alarm}/{len(free)} = " in printed
+    assert f"false identifications {identifications}/{len(free)}" in printed
+    text = (out / "summary.md").read_text()
+    assert "| fault-free runs | LOE false alarms | any false alarm | false identifications |" in text
+    assert f"| all | {len(table)} | {len(free)} | {loe}/{len(free)} = " in text

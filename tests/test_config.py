@@ -28,8 +28,8 @@ def _valid():
         "runs": [
             {"name": "a", "vcas_kt": 250.0, "altitude_m": 3000.0, "turbulence": "light",
              "fault": {"kind": "leakage", "size": 0.2, "onset_s": 0.5},
-             "manoeuvre": {"kind": "doublet", "amplitude": 0.5}},
-            {"name": "b", "manoeuvre": {"kind": "ol_sweep", "amplitude": 0.3}},
+             "manoeuvre": {"kind": "doublet", "amplitude": 0.5, "t_start_s": 0.2}},
+            {"name": "b", "manoeuvre": {"kind": "ol_sweep", "amplitude": 0.3, "t_start_s": 0.2}},
         ],
     }
 
@@ -208,7 +208,8 @@ def test_overrides_set_dotted_paths_and_list_entries():
     assert cfg.space.axis("vcas_kt") == config.Axis("vcas_kt", "range", lo=150.0, hi=300.0, n=2)
     assert [a.name for a in cfg.space.axes] == [a.name for a in base.space.axes]
     assert cfg.campaign.seed == base.campaign.seed and cfg.plant == base.plant
-    sim = config.load_config(_valid(), overrides={"runs[1].fault.size": 0.3, "runs[1].fault.kind": "leakage"})
+    sim = config.load_config(_valid(), overrides={"runs[1].fault.size": 0.3, "runs[1].fault.kind": "leakage",
+                                                  "runs[1].fault.onset_s": 0.5})
     assert (sim.runs[1].fault.kind, sim.runs[1].fault.size) == ("leakage", 0.3)
     assert _valid()["runs"][1].get("fault") is None, "the source dict is not modified"
 

@@ -245,7 +245,7 @@ def test_the_command_prints_the_plain_tcp_warning_as_one_line():
     assert done.returncode == 2
     warning, error = done.stderr.strip().splitlines()
     assert warning.startswith("mcfdd: warning: scheduler tcp://192.0.2.7:8786: plain tcp:// to another host")
-    assert error.startswith("mcfdd: configuration error: scheduler: cannot reach tcp://192.0.2.7:8786 within 1 s")
+    assert error.startswith("mcfdd: --scheduler: cannot reach tcp://192.0.2.7:8786 within 1 s")
 
 
 def test_plain_tcp_to_another_host_warns_and_tls_or_loopback_do_not():
@@ -258,10 +258,25 @@ def test_plain_tcp_to_another_host_warns_and_tls_or_loopback_do_not():
 
 
 def test_tls_files_come_together_and_must_exist(tmp_path):
-    with pytest.raises(mcfdd.ConfigError, match="--tls-key missing"):
+    with pytest.raises(mcfdd.ConfigError, match="--tls-key: missing"):
         dask_cluster.security(tmp_path / "ca.pem", tmp_path / "cert.pem")
     with pytest.raises(mcfdd.ConfigError, match="--tls-ca-file: .* is not a file"):
         dask_cluster.security(tmp_path / "ca.pem", tmp_path / "cert.pem", tmp_path / "key.pem")
+
+
+def test_tls_set_up_faults_say_so_rather_than_cannot_reach(tmp_path, capsys):
+    """A tls:// scheduler without TLS settings, and TLS files that hold no certificate, are named as TLS faults."""
+    assert cli.main(["campaign", LOE_CAMPAIGN, "--scheduler", "tls://127.0.0.1:9", "--connect-timeout", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mcfdd: --scheduler: tls://127.0.0.1:9 is a tls:// address but no TLS settings") and \
+        "cannot reach" not in err, err
+    bad = tmp_path / "bad.pem"
+    bad.write_text("not a certificate")
+    assert cli.main(["campaign", LOE_CAMPAIGN, "--scheduler", "tls://127.0.0.1:9", "--connect-timeout", "2",
+                     "--tls-ca-file", str(bad), "--tls-cert", str(bad), "--tls-key", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mcfdd: --tls-ca-file/--tls-cert/--tls-key: the TLS set-up for tls://127.0.0.1:9 failed") \
+        and "\n" not in err, err
 
 
 RUN_WITH_CACHE = """

@@ -18,14 +18,15 @@ def _interval(k, n):
 
 
 def _summary():
-    """A 'fault' stratum: FAR of 2/1000 and 0/500, MDR high; the fault-free row has no faulty runs."""
+    """A stratum of three cells: LOE false alarms in 2/1000 and 0/500 fault-free runs, MDR high; the first cell has
+    no faulty runs."""
     labels = ["none", "leakage 10-20 %", "disconnection"]
     runs, alarms, faulty, missed = [1000, 500, 400], [2, 0, 15], [0, 500, 400], [0, 450, 380]
     rows = []
     for label, n, k, nf, km in zip(labels, runs, alarms, faulty, missed):
         far, mdr = _interval(k, n), _interval(km, nf)
-        rows.append({"stratum": "fault", "label": label, "runs": n, "false_alarms": k, "far": far[0],
-                     "far_lo": far[1], "far_hi": far[2], "faulty_runs": nf, "missed": km, "mdr": mdr[0],
+        rows.append({"stratum": "fault", "label": label, "fault_free_runs": n, "false_alarms_loe": k, "far_loe": far[0],
+                     "far_loe_lo": far[1], "far_loe_hi": far[2], "faulty_runs": nf, "missed": km, "mdr": mdr[0],
                      "mdr_lo": mdr[1], "mdr_hi": mdr[2]})
     return pd.DataFrame(rows)
 
@@ -49,11 +50,11 @@ def _inside(fig):
 
 def test_rates_of_a_few_per_mille_are_on_a_log_scale_and_zero_counts_show_their_bound():
     summ = _summary()
-    fig = plots.rates_by_stratum(summ, "fault")
+    fig = plots.rates_by_stratum(summ, "fault", rates=("far_loe", "mdr"))
     far_ax, mdr_ax = fig.axes
     assert far_ax.get_xscale() == "log"
     left, right = far_ax.get_xlim()
-    assert left <= summ.loc[0, "far_lo"] and right == 1.0
+    assert left <= summ.loc[0, "far_loe_lo"] and right == 1.0
     [bar] = far_ax.collections[1:]  # errorbar's vertical caps come first; the zero-count bar is the hlines
     (x0, y0), (x1, y1) = bar.get_segments()[0]
     assert (x0, x1, y0) == pytest.approx((left, _interval(0, 500)[2], 1.0))
@@ -65,8 +66,8 @@ def test_rates_of_a_few_per_mille_are_on_a_log_scale_and_zero_counts_show_their_
 
 
 def test_rates_figure_without_mdr_has_one_panel():
-    fig = plots.rates_by_stratum(_summary(), "fault", rates=("far",))
-    assert len(fig.axes) == 1 and "false-alarm" in fig.axes[0].get_xlabel()
+    fig = plots.rates_by_stratum(_summary(), "fault", rates=("far_loe",))
+    assert len(fig.axes) == 1 and "false alarms per fault-free run" in fig.axes[0].get_xlabel()
 
 
 def test_envelope_cells_have_readable_labels_in_speed_then_altitude_order():
@@ -113,6 +114,36 @@ def test_stall_confusion_counts_events_jams_and_other_runs():
 def test_confusion_labels_fit_a_one_row_matrix():
     conf = pd.DataFrame([[256]], index=["fault-free"], columns=["no decision"])
     _inside(plots.confusion_matrix(conf))
+
+
+def test_confusion_colours_by_share_of_the_identified_runs_not_by_the_no_decision_count():
+    """'no decision' (in grey, count only) no longer sets the colour scale: each decided cell is its share of the
+    row's identified runs, so three confusions among 1,000 undecided runs still show."""
+    conf = pd.DataFrame([[9, 3, 1000], [0, 0, 50]], index=["surface-loss-100", "pressure-loss-27"],
+                        columns=["surface-loss-100", "pressure-loss-27", "no decision"])
+    fig = plots.confusion_matrix(conf)
+    colours = fig.axes[0].images[0].get_array()
+    np.testing.assert_allclose(colours[0, :2], [0.75, 0.25])
+    assert colours.mask[:, 2].all() and colours.mask[1].all()  # no decision; a row with nothing identified
+    assert [t.get_text() for t in fig.axes[0].texts] == ["9", "3", "1000", "0", "0", "50"]
+    _inside(fig)
+
+
+def test_a_fault_free_campaign_shows_its_false_identifications_per_model_or_no_confusion_at_all():
+    """The confusion of a fault-free campaign lists every fault model as a column (its false identifications),
+    and is left out, with the reason, when nothing was identified."""
+    import mcfdd
+    from test_campaign import ALARMING, FAULT_FREE, SHORT
+
+    short = {**SHORT, "campaign.scenarios": 40}
+    quiet = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides=short), progress=False)
+    assert "no identification" in quiet.left_out()["confusion"]
+    alarming = mcfdd.run_campaign(mcfdd.load_config(FAULT_FREE, overrides={**short, **ALARMING}), progress=False)
+    assert (alarming.scenarios["identified_model"] >= 0).any() and "confusion" not in alarming.left_out()
+    fig = alarming.plot("confusion")
+    labels = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert labels == [*alarming.models[1:], "no decision"]
+    assert [t.get_text() for t in fig.axes[0].get_yticklabels()] == ["fault-free"]
 
 
 def test_stall_latency_is_the_cdf_of_each_runs_worst_latency():

@@ -45,14 +45,15 @@ def device_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: 
     return jax.vmap(one)(scenarios, truths, keys)
 
 
-def on_devices(fn, *args, batched: tuple[bool, ...]) -> dict:
+def on_devices(fn, *args, batched: tuple[bool, ...], lanes: int | None = None) -> dict:
     """``fn(*args)`` with the arguments marked in ``batched`` split evenly over the devices.
 
     Each device gets an equal share of the leading axis and runs ``fn`` (a single-device jitted
     function) on it; the other arguments are copied to every device. Dispatch is asynchronous, so
-    the devices run at the same time; ``fn`` compiles once for each device it runs on. A batch
-    that does not divide among the devices runs on the first one. Returns ``fn``'s outputs as
-    NumPy arrays, the shares concatenated in order.
+    the devices run at the same time; ``fn`` compiles once for each device it runs on. With
+    ``lanes``, the batch goes to as many devices as give each a whole number of ``lanes``
+    scenarios (one device if none does); without, a batch that does not divide among all the devices
+    runs on the first one. Returns ``fn``'s outputs as NumPy arrays, the shares concatenated in order.
 
     Every device thus runs the same program as a single device would, whatever the number of
     devices. Splitting inside one jit with ``shard_map`` does not: XLA compiles a program with
@@ -63,7 +64,9 @@ def on_devices(fn, *args, batched: tuple[bool, ...]) -> dict:
     """
     devices = jax.devices()
     n = next(jax.tree.leaves(a)[0].shape[0] for a, b in zip(args, batched) if b)
-    if n % len(devices):
+    if lanes is not None:
+        devices = devices[:max((d for d in range(1, len(devices) + 1) if n % (d * lanes) == 0), default=1)]
+    elif n % len(devices):
         devices = devices[:1]
     size = n // len(devices)
 
@@ -75,14 +78,15 @@ def on_devices(fn, *args, batched: tuple[bool, ...]) -> dict:
 
 
 def run_batch(model, fdd_params, settings, scenarios, truths, keys, n_steps: int, dt_s: float, substeps: int,
-              kinds: tuple[int, ...]) -> dict:
+              kinds: tuple[int, ...], lanes: int | None = None) -> dict:
     """:func:`device_batch` with the batch split over the devices by :func:`on_devices`.
 
     With several devices (on a CPU: ``--xla_force_host_platform_device_count``) each runs the
     single-device program on its share, so a scenario's numbers are the same to the last bit
-    whatever the number of devices, provided every share is a whole number of lane blocks
-    (``mcfdd campaign`` pads each chunk to ``cli.LANE_BLOCK`` scenarios per device). Returns
-    NumPy arrays, batch axis first.
+    whatever the number of devices, provided no share is a single scenario (XLA then drops the
+    batch axis and compiles other code): ``mcfdd campaign`` gives each device a whole number of
+    ``lanes`` (``mcfdd.workflows.campaign.LANE_BLOCK``). Returns NumPy arrays, batch axis first.
     """
     return on_devices(partial(device_batch, n_steps=n_steps, dt_s=dt_s, substeps=substeps, kinds=kinds), model,
-                      fdd_params, settings, scenarios, truths, keys, batched=(False, False, False, True, True, True))
+                      fdd_params, settings, scenarios, truths, keys, batched=(False, False, False, True, True, True),
+                      lanes=lanes)

@@ -38,13 +38,17 @@ def to_dict(obj) -> dict:
 
 
 def to_json(obj) -> str:
-    return json.dumps(to_dict(obj), sort_keys=True, default=str)
+    """The resolved configuration as JSON, in its own order (the order of [space]'s axes is part of a design)."""
+    return json.dumps(to_dict(obj), default=str)
 
 
 def load_toml(path) -> dict:
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"{path}: no such configuration file")
+    if not path.is_file():
+        raise ConfigError(f"{path}: {'a folder' if path.is_dir() else 'not a regular file'}, not a configuration "
+                          f"file; give the path of a TOML file")
     try:
         with path.open("rb") as fh:
             return tomllib.load(fh)
@@ -52,6 +56,10 @@ def load_toml(path) -> dict:
         raise ConfigError(f"{path}: not a text file (not valid UTF-8)") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a configuration") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read it: {err.strerror or err}") from None
 
 
 def _in_file(path, fn, *args):

@@ -18,6 +18,7 @@ from mcfdd.config.scenario import RunConfig, SpaceConfig
 
 DESIGNS = ("grid", "random", "lhs", "sobol")
 PRECISIONS = ("float32", "float64")
+IDLE_MANOEUVRES = ("quiet", "level_flight")  # no manoeuvre starts: their t_start_s is not used
 
 
 def _duration(default: float):
@@ -84,9 +85,17 @@ class SimulateConfig(Simulated):
         if not self.runs:
             raise Invalid("runs", "at least one [[runs]] table is required")
         check_unique([r.name for r in self.runs], "runs")
+        end = self.simulation.duration_s
         for i, run in enumerate(self.runs):
             self.plant.check_flight_point(run.vcas_kt, run.altitude_m, f"runs[{i}]")
             self.plant.check_manoeuvres([run.manoeuvre.kind], f"runs[{i}].manoeuvre.kind")
+            for starts, key, what, at in (
+                    (run.manoeuvre.kind not in IDLE_MANOEUVRES, "manoeuvre.t_start_s", "manoeuvre",
+                     run.manoeuvre.t_start_s),
+                    (run.fault.kind != "none", "fault.onset_s", "fault onset", run.fault.onset_s)):
+                if starts and at >= end:
+                    raise Invalid(f"runs[{i}].{key}", f"the {what} at {at} s is at or after the end of the run "
+                                                      f"({end} s, simulation.duration_s)")
 
 
 class SweepConfig(Simulated):
@@ -151,7 +160,7 @@ class Scored(Simulated):
             raise Invalid("evaluation.settle_s", f"{self.evaluation.settle_s} s is not below the runs' duration "
                                                  f"({end} s); no decision would be scored")
         windows = (("fault_kind", ("none",), "fault_onset_s", "fault onsets"),
-                   ("manoeuvre_kind", ("quiet", "level_flight"), "t_start_s", "manoeuvres"))
+                   ("manoeuvre_kind", IDLE_MANOEUVRES, "t_start_s", "manoeuvres"))
         for kind, idle, column, what in windows:
             if set(self.values(kind)) <= set(idle):
                 continue

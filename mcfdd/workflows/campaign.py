@@ -3,13 +3,16 @@
 A chunk is rebuilt from the config and its scenario ids alone (:func:`run_chunk`), so it can run
 in process or on any ``concurrent.futures.Executor``; the driver collects the chunk tables and,
 with an output folder, writes one Parquet part per chunk as they arrive.
+
+Over 400 lines because the set-up, the chunk plan, the result object and the driver share the
+campaign's state; the output folder's rules are in :mod:`mcfdd.workflows.folder`, resource
+estimates in :mod:`mcfdd.workflows.resources`.
 """
 
 from __future__ import annotations
 
 import concurrent.futures
 import contextlib
-import json
 import os
 import socket
 import time
@@ -23,7 +26,7 @@ import pandas as pd
 from mcfdd import config, io, report
 from mcfdd.analysis import build, campaign, metrics, scenarios, scoring, simulate
 from mcfdd.progress import bar, note
-from mcfdd.workflows import common
+from mcfdd.workflows import common, folder, resources
 from mcfdd.workflows.common import (
     DEG_PER_RAD,
     OutputFolderError,
@@ -36,14 +39,17 @@ from mcfdd.workflows.common import (
     save_figure,
 )
 
-CAMPAIGN_STATE = "campaign.json"
-# Chunks are padded to a multiple of this many scenarios per device: every batch then runs the
-# same vectorised code, so results do not depend on the chunk size to the last bit.
-LANE_BLOCK = 64
+# Each device's share of a chunk is a whole number of LANE_BLOCK scenarios, so a scenario's bits do
+# not depend on the chunk size or the device count. Measured on one device (float32 and float64):
+# shares of 2 to 250 scenarios give every scenario the bits of a share of 64; a share of 1 does not
+# (XLA drops the size-1 batch axis and compiles other code). 16 is one 512-bit vector of float32
+# (the campaign program prefers 512-bit vectors): a margin for CPUs whose loop remainders might
+# round otherwise, for at most 15 padded scenarios per device and chunk.
+LANE_BLOCK = 16
 PLOTS = {
-    "rates_by_fault": "FAR and MDR per fault class with their 95 % intervals",
-    "rates_by_envelope": "FAR and MDR per speed and altitude cell",
-    "rates_by_manoeuvre": "FAR and MDR per manoeuvre family",
+    "rates_by_fault": "false alarms per fault-free run (LOE, any) and MDR per fault class with their 95 % intervals",
+    "rates_by_envelope": "false alarms per fault-free run (LOE, any) and MDR per speed and altitude cell",
+    "rates_by_manoeuvre": "false alarms per fault-free run (LOE, any) and MDR per manoeuvre family",
     "detection_times": "detection latency per fault class (detected runs)",
     "confusion": "identification confusion (true nearest model against decided model, jammed runs included) and, "
                  "with stall loads or jams, stall identification against the truth",
@@ -99,10 +105,74 @@ def design_line(cfg: config.CampaignConfig, n: int) -> str:
     return line
 
 
-def chunk_size(requested: int, n: int) -> int:
-    """Scenarios per chunk: ``requested`` (at most n) rounded up to LANE_BLOCK x devices."""
-    block = LANE_BLOCK * jax.device_count()
-    return -(-min(requested, max(n, 1)) // block) * block
+def chunk_size(requested: int, n: int, devices: int | None = None) -> int:
+    """Scenarios per chunk (every chunk pads to it: one program): the ``n`` scenarios evened out over the fewest
+    chunks of at most ``requested``, then rounded up to a whole number of LANE_BLOCK scenarios on each of the
+    devices that get any (:func:`chunk_devices`; ``devices`` defaults to this process's JAX devices).
+
+    >>> chunk_size(2048, 2560, devices=4), chunk_size(2048, 10, devices=4), chunk_size(128, 320, devices=2)
+    (1280, 16, 128)
+    """
+    if devices is None:
+        devices = jax.device_count()
+    n = max(n, 1)
+    per_chunk = -(-n // -(-n // min(requested, n)))
+    used = min(devices, -(-per_chunk // LANE_BLOCK))
+    return -(-per_chunk // (used * LANE_BLOCK)) * used * LANE_BLOCK
+
+
+def scenario_bytes(setup: CampaignSetup) -> int:
+    """Bytes of one scenario's inputs, plant parameters and scan carry in the chunk program (traced, not compiled)."""
+    c = setup.config.campaign
+
+    def one():
+        scen, truth, key = jax.tree.map(lambda x: x[0], chunk_inputs(setup, c.seed, np.arange(1), 1))
+        observer = scoring.observer(setup.settings, truth, scoring.monitors(setup.settings, truth, setup.fdd_params))
+        return scen, truth, key, simulate.start(setup.model, setup.fdd_params, scen, key, c.dt_s, observer)
+
+    with precision(c.precision):
+        return resources.tree_bytes(jax.eval_shape(one))
+
+
+def _chunk_plan(setup: CampaignSetup, executor, progress: bool) -> int:
+    """The chunk size to run: :func:`chunk_size`, smaller where a chunk's memory would not fit; a note when a chunk
+    may take long. A campaign whose table, or whose smallest chunk, cannot fit is refused naming the key."""
+    c, n = setup.config.campaign, setup.n
+    size = chunk_size(c.chunk_size, n)
+    per_scenario = scenario_bytes(setup)
+    available, table = resources.available_bytes(), resources.table_bytes(n)
+    if table + (resources.RUNTIME_BYTES if executor is None else 0) > available:
+        raise common.ResourceError(f"campaign.scenarios: the table of {n} scenarios needs about "
+                                 f"{resources.gib(table)} in this process, more than the "
+                                 f"{resources.gib(available)} available; split the campaign (e.g. by seed)")
+    room, where = available - table, "available here"
+    if _is_dask(executor):
+        from mcfdd.workflows import cluster
+
+        limit = cluster.worker_memory(executor)
+        room, where = (room, where) if limit is None else (limit, "of the smallest worker's memory limit")
+    if resources.chunk_bytes(size, per_scenario) > room:
+        fits = resources.largest_chunk(room, per_scenario)
+        if fits < LANE_BLOCK:
+            raise common.ResourceError(f"campaign.chunk_size: even a chunk of {LANE_BLOCK} scenarios needs about "
+                                     f"{resources.gib(resources.chunk_bytes(LANE_BLOCK, per_scenario))}, more than "
+                                     f"the {resources.gib(room)} {where}")
+        block = LANE_BLOCK * jax.device_count()
+        smaller = chunk_size(fits // block * block or fits // LANE_BLOCK * LANE_BLOCK, n)
+        note(f"campaign: chunks of {size} scenarios would need about "
+             f"{resources.gib(resources.chunk_bytes(size, per_scenario))}; running chunks of {smaller}, which fit in "
+             f"the {resources.gib(room)} {where} (the table does not depend on the chunk size)", True)
+        size = smaller
+    slow = resources.long_chunk_note(size, c.n_steps, resources.cores() if executor is None else 1)
+    if slow:
+        note(slow, True)
+    return size
+
+
+def chunk_devices(size: int, devices: int) -> int:
+    """How many of ``devices`` a chunk of ``size`` (a multiple of LANE_BLOCK) is split over: the most that give each
+    a whole number of LANE_BLOCK scenarios (as :func:`mcfdd.analysis.campaign.on_devices` splits it)."""
+    return max(d for d in range(1, devices + 1) if size % (d * LANE_BLOCK) == 0)
 
 
 def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
@@ -156,7 +226,7 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
         setup = _setup_of(cfg, plan)
         cols, scen, truth, onset, nearest, keys = _chunk(setup, c.seed, ids, size)
         raw = campaign.run_batch(setup.model, setup.fdd_params, setup.settings, scen, truth, keys, c.n_steps, c.dt_s,
-                                 c.substeps, setup.kinds)
+                                 c.substeps, setup.kinds, lanes=LANE_BLOCK)
         outc = scoring.table({name: np.asarray(v)[:k] for name, v in raw.items()}, onset[:k], nearest[:k],
                              c.duration_s, cfg.evaluation.t_detec_s)
         cols = {name: np.asarray(v)[:k] for name, v in cols.items()}
@@ -165,56 +235,9 @@ def run_chunk(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: buil
     return table
 
 
-def _resolved(cfg: config.CampaignConfig) -> dict:
-    """Resolved config without the chunk size, which does not change results."""
-    data = config.to_dict(cfg)
-    data["campaign"].pop("chunk_size")
-    return json.loads(json.dumps(data, default=str))
-
-
-def _state_text(cfg: config.CampaignConfig) -> str:
-    """campaign.json: the resolved config in its own order (the order of [space]'s axes orders the design's
-    columns, so the scenarios are rebuilt from this file alone, :mod:`mcfdd.workflows.replay`)."""
-    return json.dumps(_resolved(cfg), indent=1)
-
-
-@contextlib.contextmanager
-def _writing(out: Path, advice: str):
-    """Turns a failed write under ``out`` (no space, read-only, ...) into one line naming the file."""
-    try:
-        yield
-    except OSError as err:
-        raise OutputFolderError(f"out: cannot write {err.filename or out}: {err.strerror or err}; {advice}") from None
-
-
-def _check_out(out: Path, resume: bool):
-    """Refuse an output path that cannot hold this campaign, before anything is made."""
-    check_folder(out, "out")
-    if resume and not (out / CAMPAIGN_STATE).is_file():
-        raise OutputFolderError(f"resume: {out} holds no campaign to resume ({CAMPAIGN_STATE} missing)")
-
-
-def _prepare_dir(out: Path, cfg: config.CampaignConfig, resume: bool):
-    state = out / CAMPAIGN_STATE
-    if resume:
-        try:
-            stored = json.loads(state.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise OutputFolderError(f"resume: {state} is not a readable campaign state ({err})") from None
-        changed = config.differences(stored, _resolved(cfg))
-        if changed:
-            raise OutputFolderError(f"resume: the configuration differs from the one {out} was started with: "
-                                    + "; ".join(f"{key} was {json.dumps(a)}, now {json.dumps(b)}"
-                                                for key, a, b in changed))
-        return
-    if io.folder_entries(out):
-        raise OutputFolderError(f"out: {out} exists and is not empty; resume it or choose another folder")
-    with _writing(out, "choose a folder you can write to"):
-        io.write_text(state, _state_text(cfg))
-
-
-def _part_name(first_id: int) -> str:
-    return f"part-{first_id:08d}.parquet"
+def scored_seconds(cfg: config.CampaignConfig) -> float:
+    """Seconds of each run that are scored for false alarms: the run after its settling time."""
+    return cfg.campaign.duration_s - cfg.evaluation.settle_s
 
 
 class CampaignResult:
@@ -225,8 +248,10 @@ class CampaignResult:
             in the names), outcomes (false alarm, detection, identification, stall events, status
             as :class:`mcfdd.Status` codes) and per filter i ``ratio_max_pre_i`` /
             ``ratio_min_post_i`` (theta_i / ||u|| before the fault and in the detection window).
-        summary: FAR, MDR, identification and stall rates with Clopper-Pearson 95 % intervals,
-            overall and per stratum (columns ``stratum`` and ``label``).
+        summary: false alarms per fault-free run (LOE detection ``far_loe``, any alarm ``far_any``, false
+            identifications; also per hour of scored fault-free time), MDR of the faulty runs,
+            identification and stall rates, with Clopper-Pearson 95 % intervals, overall and per stratum
+            (columns ``stratum`` and ``label``; :data:`mcfdd.report.FALSE_ALARM_COLUMNS`).
         confusion: true nearest model (rows) against decided model (columns), counts.
         gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector, with the scenario of each
             (in ``gaps.parquet`` also the command replaying it: ``tau_f_replay``, ``tau_d_replay``).
@@ -246,7 +271,7 @@ class CampaignResult:
         self._parts, self._plan = parts, plan
         self.workers = workers
         deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
-        self.summary = report.summary(scenarios)
+        self.summary = report.summary(scenarios, scored_seconds(cfg))
         self.confusion = report.confusion(scenarios, list(models))
         self.gaps = report.gaps(scenarios, deg_per_m)
         self.detectability = report.detectability(scenarios)
@@ -272,7 +297,7 @@ class CampaignResult:
         return replay.replay_rows(self.config, self.scenarios, ids, self._plan, progress)
 
     def overall(self) -> dict:
-        """The overall row of :attr:`summary` as a dict (runs, far, far_lo, far_hi, mdr, ...)."""
+        """The overall row of :attr:`summary` as a dict (runs, fault_free_runs, far_loe, far_any, mdr, ...)."""
         return self.summary[self.summary["stratum"] == "overall"].iloc[0].to_dict()
 
     def left_out(self) -> dict:
@@ -287,6 +312,9 @@ class CampaignResult:
             why["detectability"] = "no parametric faults in this campaign"
         if o["stall_events"] == 0:
             why["stall_latency"] = "no relevant stall loads in this campaign"
+        if o["faulty_runs"] == 0 and o["jammed_runs"] == 0 and o["stall_events"] == 0 and \
+                not (df["identified_model"] >= 0).any():
+            why["confusion"] = "no faulty or jammed run, no stall load and no identification in this campaign"
         return why
 
     def plot(self, name: str):
@@ -305,7 +333,7 @@ class CampaignResult:
         if why:
             raise ValueError(f"plot: {name!r} is not drawn for this campaign: {why}")
         if name.startswith("rates_by_"):
-            rates = ("far", "mdr") if self.overall()["faulty_runs"] > 0 else ("far",)
+            rates = ("far_loe", "far_any") + (("mdr",) if self.overall()["faulty_runs"] > 0 else ())
             return plots.rates_by_stratum(self.summary, name[len("rates_by_"):], rates)
         if name == "detection_times":
             return plots.detection_times(self.scenarios, report.fault_class(self.scenarios))
@@ -313,7 +341,9 @@ class CampaignResult:
             o = self.overall()
             stall = (report.stall_confusion(self.scenarios, self.config.fdd.stall.identification)
                      if o["stall_events"] > 0 or o["jammed_runs"] > 0 else None)
-            return plots.confusion_matrix(self.confusion, stall)
+            decidable = [m for m in self.models if m != self.models[0] or m in self.confusion.columns]
+            return plots.confusion_matrix(self.confusion.reindex(columns=[*decidable, "no decision"], fill_value=0),
+                                          stall)
         if name == "detectability":
             return plots.detectability(self.detectability)
         return plots.stall_latency(self.scenarios, self.config.evaluation.stall_window_s)
@@ -325,18 +355,53 @@ class CampaignResult:
         ``summary.parquet``, ``confusion.parquet``, ``gaps.parquet``, ``detectability.parquet``, ``summary.md`` (headed
         ``title``, ending with the figures written and those :meth:`left_out`, with the reason) and a PNG per
         :data:`PLOTS` name not left out.
+
+        The command's rule holds: ``out`` is a new or empty folder, or one holding this same campaign
+        (its ``campaign.json`` and no part this result does not write); anything else, a file, or a
+        folder another run is writing raises :class:`OutputFolderError` before anything is written.
         """
         out = Path(out)
+        self._check_target(out)
+        with folder.writing(out, "choose a folder you can write to"):
+            lock = io.lock_folder(out)
+        if lock is None:
+            raise folder.in_use(out)
+        try:
+            with folder.writing(out, "choose a folder you can write to"):
+                return self._write(out, title)
+        finally:
+            lock.release()
+
+    def _part_names(self) -> set[str]:
+        ids = self.scenarios["scenario_id"].to_numpy()
+        return {folder.part_name(int(ids[self._parts == part][0])) for part in np.unique(self._parts)}
+
+    def _check_target(self, out: Path):
+        """Refuse a folder :meth:`save` must not write into (see there)."""
+        check_folder(out, "--out")
+        if not io.folder_entries(out):
+            return
+        state = out / folder.CAMPAIGN_STATE
+        if not state.is_file() or folder.stored_differences(state, self.config):
+            raise OutputFolderError(f"--out: {out} exists and is not empty and holds no campaign of this "
+                                    f"configuration; choose another folder")
+        foreign = sorted(p.name for p in (out / "scenarios").glob("part-*.parquet") if p.name not in self._part_names())
+        if foreign:
+            raise OutputFolderError(f"--out: {out} holds parts of this campaign in other chunks ({foreign[0]}, ...) "
+                                    f"that this result would not replace; choose another folder")
+
+    def _write(self, out: Path, title: str) -> list[Path]:
+        """:meth:`save` into a folder already checked and locked."""
         left_out = self.left_out()
-        no_mdr = " (FAR only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
+        no_mdr = " (false alarms only: no faulty runs, so no MDR panel)" if self.overall()["faulty_runs"] == 0 else ""
         drawn = {name: what + (no_mdr if name.startswith("rates_by_") else "") for name, what in PLOTS.items()
                  if name not in left_out}
-        written = [io.write_text(out / CAMPAIGN_STATE, _state_text(self.config))]
+        written = [io.write_text(out / folder.CAMPAIGN_STATE, folder.state_text(self.config))]
         ids = self.scenarios["scenario_id"].to_numpy()
         for part in np.unique(self._parts):
             rows = self._parts == part
             written.append(io.write_table(self.scenarios[rows].reset_index(drop=True),
-                                          out / "scenarios" / _part_name(int(ids[rows][0])), self.meta))
+                                          out / "scenarios" / folder.part_name(int(ids[rows][0])), self.meta))
         written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
         written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
         gaps = self.gaps.copy()  # with the command replaying each bound's witness (empty where it has none)
@@ -378,6 +443,8 @@ def campaign_executor(scheduler: str | None = None, workers: int | None = None, 
         return
     if connect_timeout_s <= 0:
         raise config.ConfigError(f"--connect-timeout: {connect_timeout_s} is not allowed; expected seconds > 0")
+    if workers is not None:
+        resources.check_workers(workers)  # before Dask is even imported
     try:
         from mcfdd.workflows import cluster  # deferred: Dask is the optional 'distributed' extra
     except ImportError:
@@ -394,6 +461,18 @@ def chunk_task(cfg: config.CampaignConfig, ids: np.ndarray, size: int, plan: bui
     return table, f"{socket.gethostname()}:{os.getpid()}", time.perf_counter() - start
 
 
+def _layout(size: int, executor) -> str:
+    """How a chunk is spread, for the campaign's status line: devices x share here, or on the workers."""
+    if executor is not None:
+        return f"each split over its worker's devices, {LANE_BLOCK} lanes at least"
+    used = chunk_devices(size, jax.device_count())
+    return f"{used} device(s) x {size // used}"
+
+
+def _is_dask(executor) -> bool:
+    return type(executor).__module__.startswith("distributed")
+
+
 def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """The chunks run in process (``executor`` None), on a ``concurrent.futures.Executor`` or on a Dask client.
 
@@ -402,8 +481,8 @@ def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """
     if executor is None:
         return ((ids, *chunk_task(cfg, ids, size, plan)) for ids in chunks), lambda: None
-    if type(executor).__module__.startswith("distributed"):
-        from mcfdd.workflows import cluster  # deferred: Dask is the optional 'distributed' extra
+    if _is_dask(executor):
+        from mcfdd.workflows import cluster
 
         return cluster.submit(executor, chunk_task, cfg, chunks, size, plan, cache)
     futures = {executor.submit(chunk_task, cfg, ids, size, plan): ids for ids in chunks}
@@ -418,51 +497,6 @@ def worker_table(records, n_steps: int):
                                                    busy_s=("busy_s", "sum")).reset_index()
     table["scenario_steps_per_s"] = table["scenarios"] * n_steps / table["busy_s"]
     return table
-
-
-def _part_damage(part: Path, setup: CampaignSetup, done: np.ndarray):
-    """(table, None) for a sound part of this campaign, (None, what is wrong) for a damaged one.
-
-    Sound: readable in full with its page checksums, named after its first scenario id, holding
-    ids of this campaign that no other part holds, with exactly the design values of those ids.
-    """
-    try:
-        df = io.read_checked_table(part)
-    except ValueError as err:
-        return None, f"unreadable: {err}"
-    if "scenario_id" not in df.columns:
-        return None, "column scenario_id missing"
-    ids = df["scenario_id"].to_numpy()
-    if not len(ids) or ids.dtype.kind not in "iu" or ids.min() < 0 or ids.max() >= setup.n:
-        return None, f"scenario ids outside 0..{setup.n - 1}"
-    if part.name != _part_name(int(ids[0])) or len(np.unique(ids)) != len(ids) or done[ids].any():
-        return None, "scenario ids repeated or not those of its name"
-    for column, values in build.design_chunk(setup.config, setup.plan, ids).items():
-        if column not in df.columns:
-            return None, f"column {column} missing"
-        if not np.array_equal(df[column].to_numpy(), np.asarray(values)):
-            return None, f"column {column} differs from the campaign's design"
-    return df, None
-
-
-def _read_parts(parts_dir: Path, setup: CampaignSetup):
-    """Sound tables already written under ``parts_dir`` with their part numbers, and which ids they hold.
-
-    A damaged part (:func:`_part_damage`) is renamed ``*.damaged`` and named on stderr; its
-    scenarios are run again.
-    """
-    frames, labels, done = [], [], np.zeros(setup.n, dtype=bool)
-    for part in sorted(parts_dir.glob("part-*.parquet")):
-        df, damage = _part_damage(part, setup, done)
-        if damage is not None:
-            aside = part.with_name(part.name + ".damaged")
-            part.replace(aside)
-            note(f"resume: {part} is damaged ({damage}); moved to {aside.name}, its scenarios are run again", True)
-            continue
-        frames.append(df)
-        labels.append(np.full(len(df), int(part.stem.split("-")[1])))
-        done[df["scenario_id"].to_numpy()] = True
-    return frames, labels, done
 
 
 def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, executor=None, on_chunk=None,
@@ -500,41 +534,45 @@ def run_campaign(cfg, out=None, resume: bool = False, progress: bool = True, exe
     (2, 2)
     """
     cfg = as_config(cfg, "campaign")
-    if out is None:
-        return _run_campaign(cfg, None, resume, progress, executor, on_chunk, title, compile_cache, plan)
-    out = Path(out)
-    _check_out(out, resume)
+    if out is not None:
+        out = Path(out)
+        folder.check_out(out, resume)
     with precision(cfg.campaign.precision):
-        _setup_of(cfg, plan)  # a configuration error (a bad bank) stops the run before any folder is made
-    with _writing(out, "choose a folder you can write to"):
+        setup = _setup_of(cfg, plan)  # a configuration error (a bad bank) stops the run before any folder is made
+    size = _chunk_plan(setup, executor, progress)  # so does a campaign that cannot fit in memory
+    common.compile_cache(compile_cache)  # and an unusable cache folder
+    if out is None:
+        return _run_campaign(setup, None, size, resume, progress, executor, on_chunk, title, compile_cache)
+    made = not out.exists()
+    with folder.writing(out, "choose a folder you can write to"):
         lock = io.lock_folder(out)
     if lock is None:
-        raise OutputFolderError(f"out: {out} is in use by another mcfdd run ({io.LOCK_NAME} is locked); wait for "
-                                f"it to end or choose another folder")
+        raise folder.in_use(out)
     try:
-        return _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache, plan)
+        return _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache)
     finally:
         lock.release()
+        if made:
+            folder.remove_if_unused(out)
 
 
-def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile_cache, plan) -> CampaignResult:
-    """:func:`run_campaign` of a parsed config; ``out`` is None or a folder this process has locked."""
+def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title, compile_cache) -> CampaignResult:
+    """:func:`run_campaign` of a set-up campaign in chunks of ``size``; ``out`` is None or a folder this process has
+    locked."""
+    cfg = setup.config
     c = cfg.campaign
-    common.compile_cache(compile_cache)
-    with precision(c.precision):
-        setup = _setup_of(cfg, plan)
-        size = chunk_size(c.chunk_size, setup.n)
     n, names = setup.n, setup.names
     if out is not None:
-        _prepare_dir(out, cfg, resume)
-    frames, labels, done = _read_parts(out / "scenarios", setup) if out is not None and resume else (
+        folder.prepare_dir(out, cfg, resume)
+    frames, labels, done = folder.read_parts(out / "scenarios", setup) if out is not None and resume else (
         [], [], np.zeros(n, dtype=bool))
     todo = np.flatnonzero(~done)
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names))
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
     note(design_line(cfg, n), progress)
     note(f"campaign: {n} scenarios of {c.duration_s} s ({c.n_steps} steps, {c.precision}), {len(todo)} to run in "
-         f"{len(chunks)} chunk(s) of {size}", progress)
+         f"{len(chunks)} chunk(s) of {size} ({_layout(size, executor)}; {len(chunks) * size - len(todo)} padding "
+         f"scenarios)", progress)
     records = []
     with bar(len(todo), "scenarios", progress, unit="scen") as shown:
         finished, cancel = _submit(executor, cfg, chunks, size, setup.plan, compile_cache)
@@ -542,8 +580,8 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile
             for ids, table, worker, seconds in finished:
                 frame = pd.DataFrame(table)
                 if out is not None:
-                    with _writing(out, "the parts written so far are kept; make room and continue with --resume"):
-                        io.write_table(frame, out / "scenarios" / _part_name(int(ids[0])), meta)
+                    with folder.writing(out, "the parts written so far are kept; make room and continue with --resume"):
+                        io.write_table(frame, out / "scenarios" / folder.part_name(int(ids[0])), meta)
                 frames.append(frame)
                 labels.append(np.full(len(ids), int(ids[0])))
                 records.append((worker, len(ids), seconds))
@@ -558,6 +596,6 @@ def _run_campaign(cfg, out, resume, progress, executor, on_chunk, title, compile
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
                             len(todo), worker_table(records, c.n_steps), setup.plan)
     if out is not None:
-        with _writing(out, "every scenario part is written; make room and continue with --resume"):
-            result.save(out, title)
+        with folder.writing(out, "every scenario part is written; make room and continue with --resume"):
+            result._write(out, title)
     return result

@@ -15,6 +15,7 @@ import ipaddress
 import logging
 import os
 import socket
+import ssl
 import warnings
 from pathlib import Path
 
@@ -23,14 +24,16 @@ from distributed.comm.addressing import get_address_host, parse_address, parse_h
 from distributed.diagnostics.plugin import WorkerPlugin
 from distributed.security import Security
 
-from mcfdd import config, devices
-from mcfdd.workflows.common import compile_cache
+from mcfdd import devices
+from mcfdd.progress import note
+from mcfdd.workflows import resources
+from mcfdd.workflows.common import ResourceError, compile_cache
 
 SCHEMES = ("tcp", "tls")
 PLUGIN = "mcfdd-worker-setup"
 
 
-class ClusterError(config.ConfigError):
+class ClusterError(ResourceError):
     """A cluster that cannot be used: a bad address, an unreachable scheduler, no workers, bad TLS files."""
 
 
@@ -49,7 +52,7 @@ def check_address(address: str) -> str:
     except (ValueError, TypeError):
         scheme = host = port = None
     if scheme not in SCHEMES or not host or not port:
-        raise ClusterError(f"scheduler: {address!r} is not an address like tls://HOST:PORT or tcp://127.0.0.1:PORT")
+        raise ClusterError(f"--scheduler: {address!r} is not an address like tls://HOST:PORT or tcp://127.0.0.1:PORT")
     if scheme == "tcp" and not _is_loopback(host):
         warnings.warn(f"scheduler {address}: plain tcp:// to another host; anyone who reaches the scheduler can run "
                       f"code on its workers: use tls:// or keep the cluster inside a trusted network (README, Beyond "
@@ -64,8 +67,9 @@ def security(tls_ca_file=None, tls_cert=None, tls_key=None):
     if not given:
         return Security()
     if len(given) < len(files):
-        missing = ", ".join(f"--{k.replace('_', '-')}" for k in files if k not in given)
-        raise ClusterError(f"tls: {missing} missing; give the CA file, the certificate and its key together")
+        missing = [f"--{k.replace('_', '-')}" for k in files if k not in given]
+        raise ClusterError(f"{missing[0]}: missing ({', '.join(missing)}); give the CA file, the certificate and its "
+                           f"key together")
     for key, path in given.items():
         if not Path(path).is_file():
             raise ClusterError(f"--{key.replace('_', '-')}: {path} is not a file")
@@ -91,27 +95,39 @@ def dask_cluster(scheduler: str | None = None, workers: int | None = None, secur
             ``timeout_s``.
     """
     if (scheduler is None) == (workers is None):
-        raise ClusterError("cluster: give either a scheduler address or a number of local workers")
+        raise ClusterError("--scheduler/--workers: give either a scheduler address or a number of local workers")
     if workers is not None:
-        if workers < 1:
-            raise ClusterError(f"workers: {workers} is not allowed; expected a positive integer")
+        resources.check_workers(workers)
         # The workers would inherit this process's device count; each gets its share of the cores instead.
         env = {"XLA_FLAGS": devices.xla_flags(local_devices(workers))}
+        note(f"campaign: starting a local Dask cluster of {workers} worker process(es)", True)
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                           dashboard_address=None, silence_logs=logging.ERROR, env=env) as local, \
                 Client(local) as client:
-            yield client
+            try:
+                yield client
+            except KeyboardInterrupt:  # closed at once, without the logs of the connections and messages it cuts
+                for name in ("distributed", "asyncio"):
+                    logging.getLogger(name).setLevel(logging.CRITICAL)
+                raise
         return
     address = check_address(scheduler)
     try:
         client = Client(address, security=security, timeout=timeout_s)
-    except (OSError, TimeoutError, TypeError, ValueError) as err:  # TypeError: tls:// without TLS settings
-        raise ClusterError(f"scheduler: cannot reach {address} within {timeout_s:g} s ({err})") from None
+    except TypeError:  # Dask's words for a tls:// address without TLS settings
+        raise ClusterError(f"--scheduler: {address} is a tls:// address but no TLS settings are given; give "
+                           f"--tls-ca-file, --tls-cert and --tls-key (or Dask's distributed.comm.tls "
+                           f"configuration)") from None
+    except ssl.SSLError as err:
+        raise ClusterError(f"--tls-ca-file/--tls-cert/--tls-key: the TLS set-up for {address} failed: "
+                           f"{err.reason or err}") from None
+    except (OSError, TimeoutError, ValueError) as err:
+        raise ClusterError(f"--scheduler: cannot reach {address} within {timeout_s:g} s ({err})") from None
     with client:
         try:
             client.wait_for_workers(1, timeout=timeout_s)
         except TimeoutError:
-            raise ClusterError(f"scheduler: {address} has no workers after {timeout_s:g} s") from None
+            raise ClusterError(f"--scheduler: {address} has no workers after {timeout_s:g} s") from None
         yield client
 
 
@@ -138,6 +154,12 @@ class WorkerSetup(WorkerPlugin):
         threads = self.host_threads.get(get_address_host(worker.address), worker.state.nthreads)
         devices.use_cores(local_devices(threads))
         compile_cache(self.cache)
+
+
+def worker_memory(client) -> float | None:
+    """The smallest memory limit (bytes) of the client's workers, or None when none is set."""
+    limits = [info.get("memory_limit") or 0 for info in client.scheduler_info(n_workers=-1)["workers"].values()]
+    return float(min(limits)) if limits and min(limits) > 0 else None
 
 
 def _host_threads(client) -> dict:

@@ -15,7 +15,13 @@ from mcfdd import config, io
 from mcfdd.fdd import lpv
 
 
-class OutputFolderError(config.ConfigError):
+class ResourceError(config.ConfigError):
+    """What a command cannot use, though its configuration is valid: a folder, a disk, a cluster, this machine's
+    cores or memory. One line naming the flag or key that asked for it; ``mcfdd`` prints it without calling it a
+    configuration error."""
+
+
+class OutputFolderError(ResourceError):
     """An output folder that cannot be used: not a folder, not empty without resume, or holding another campaign."""
 
 
@@ -76,7 +82,7 @@ def compile_cache(folder=None) -> Path | None:
         try:
             path.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise config.ConfigError(f"compile_cache: cannot use {str(path)!r}: {err.strerror}") from None
+            raise config.ConfigError(f"--compile-cache: cannot use {str(path)!r}: {err.strerror}") from None
     wanted = (str(path) if path is not None else jax.config.jax_compilation_cache_dir, path is not None)
     if (jax.config.jax_compilation_cache_dir, jax.config.jax_enable_compilation_cache) != wanted:
         compilation_cache.reset_cache()

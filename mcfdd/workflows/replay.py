@@ -27,6 +27,7 @@ from mcfdd.analysis import build
 from mcfdd.progress import note
 from mcfdd.workflows import campaign as campaign_wf
 from mcfdd.workflows.common import precision, save_figure, slug
+from mcfdd.workflows.folder import CAMPAIGN_STATE
 from mcfdd.workflows.simulate import Histories, histories
 
 
@@ -45,11 +46,11 @@ def stored_campaign(folder) -> tuple[config.CampaignConfig, pd.DataFrame, Path]:
     folder = Path(folder)
     if not folder.is_dir():
         raise ReplayError(f"replay: {folder} {'is not a folder' if folder.exists() else 'does not exist'}")
-    state = folder / campaign_wf.CAMPAIGN_STATE
-    if not state.is_file() and (folder / "runs" / campaign_wf.CAMPAIGN_STATE).is_file():
-        folder, state = folder / "runs", folder / "runs" / campaign_wf.CAMPAIGN_STATE
+    state = folder / CAMPAIGN_STATE
+    if not state.is_file() and (folder / "runs" / CAMPAIGN_STATE).is_file():
+        folder, state = folder / "runs", folder / "runs" / CAMPAIGN_STATE
     if not state.is_file():
-        raise ReplayError(f"replay: {folder} holds no campaign ({campaign_wf.CAMPAIGN_STATE} missing)")
+        raise ReplayError(f"replay: {folder} holds no campaign ({CAMPAIGN_STATE} missing)")
     try:
         cfg = config.load_config(json.loads(state.read_text()), "campaign")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, config.ConfigError) as err:
@@ -84,7 +85,7 @@ def _design_plan(cfg: config.CampaignConfig, rows: pd.DataFrame, folder) -> buil
         if ids.max() < plan.n and all(name in rows and np.array_equal(rows[name].to_numpy(), np.asarray(values))
                                       for name, values in build.design_chunk(cfg, plan, ids).items()):
             return plan
-    raise ReplayError(f"replay: the scenario rows of {folder} are not those of its {campaign_wf.CAMPAIGN_STATE} "
+    raise ReplayError(f"replay: the scenario rows of {folder} are not those of its {CAMPAIGN_STATE} "
                       f"(its design gives other parameters; the order of its [space] axes is part of the design)")
 
 

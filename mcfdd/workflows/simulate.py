@@ -17,7 +17,8 @@ from mcfdd.analysis.scenarios import to_scenario
 from mcfdd.analysis.simulate import fdd_batch, run_keys
 from mcfdd.plant import atmosphere, closed_loop, signals
 from mcfdd.progress import note
-from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure, slug
+from mcfdd.workflows import resources
+from mcfdd.workflows.common import ResourceError, as_config, dtype_of, load_bank, precision, save_figure, slug
 
 
 def runs_table(runs) -> dict:
@@ -55,6 +56,8 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
             seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
             unique, inverse = np.unique(seeds, return_inverse=True)
             keys = jnp.concatenate([run_keys(int(s), [0]) for s in unique])[inverse]
+        _check_memory(len(run_names), sim, jax.eval_shape(lambda s, k: fdd_batch(
+            model, fdd_params, s, k, 1, sim.dt_s, sim.substeps, kinds), scenarios, keys))
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",
              progress)
         start = time.perf_counter()
@@ -95,6 +98,18 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     })
     t = np.arange(sim.n_steps) * sim.dt_s
     return io.history_frame(list(run_names), t, {k: np.asarray(v) for k, v in columns.items()}), names
+
+
+def _check_memory(runs: int, sim: config.SimulationConfig, one_step):
+    """Refuse histories that would not fit in memory, before simulating (``one_step``: the output shapes of one
+    step of every run)."""
+    per_sample = resources.tree_bytes(one_step) / runs
+    need, available = resources.history_bytes(runs * sim.n_steps, per_sample), resources.available_bytes()
+    if need > available:
+        raise ResourceError(f"simulation.duration_s: {runs} run(s) x {sim.n_steps} steps x {per_sample:.0f} "
+                                 f"bytes of signals need about {resources.gib(need)} with their table, more than the "
+                                 f"{resources.gib(available)} available; simulate fewer runs or shorter ones (a "
+                                 f"campaign keeps no time histories)")
 
 
 class Histories:

@@ -14,7 +14,7 @@ import pandas as pd
 from mcfdd import config, io, report
 from mcfdd.analysis import batch, build, scenarios, scoring, simulate, tuning
 from mcfdd.progress import bar, note
-from mcfdd.workflows.campaign import run_campaign
+from mcfdd.workflows.campaign import run_campaign, scored_seconds
 from mcfdd.workflows.common import CompileCounter, as_config, dtype_of, load_bank, precision, save_figure
 
 
@@ -204,7 +204,7 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
         compiles[label] = counter.count
     t_val = time.perf_counter() - start
     validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
-                                         cfg.fdd.stall.identification)
+                                         cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
     meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
     notes = [f"Tuning of the {det} detector by gradient through the FDD over {n} stored plant histories of "
              f"{tr.duration_s} s (training seed {tr.seed}; plant simulated once in {t_plant:.1f} s). Objective: smooth "
