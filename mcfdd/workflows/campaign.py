@@ -404,27 +404,22 @@ class CampaignResult:
                                           out / "scenarios" / folder.part_name(int(ids[rows][0])), self.meta))
         written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
         written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
-        gaps = self.gaps.copy()  # with the command replaying each bound's witness (empty where it has none)
-        for bound in ("tau_f", "tau_d"):
-            gaps[f"{bound}_replay"] = [replay_command(out, [i]) if i >= 0 else "" for i in gaps[f"{bound}_scenario_id"]]
-        witnesses = pd.unique(gaps[["tau_f_scenario_id", "tau_d_scenario_id"]].to_numpy().ravel())
-        written.append(io.write_table(gaps, out / "gaps.parquet", self.meta))
+        witnesses = {b: self.gaps[f"{b}_scenario_id"].to_numpy() for b in ("tau_f", "tau_d")}  # -1: none
+        written.append(io.write_table(self.gaps.assign(**{f"{b}_replay": [replay_command(out, [i] if i >= 0 else [])
+                                                                           for i in w] for b, w in witnesses.items()}),
+                                      out / "gaps.parquet", self.meta))
         written.append(io.write_table(self.detectability, out / "detectability.parquet", self.meta))
+        ids = pd.unique(np.concatenate(list(witnesses.values())))
         written.append(io.write_text(out / "summary.md", report.markdown(title, self.summary, self.confusion,
                                                                          self.gaps, self.meta,
-                                                                         _replay(out, witnesses[witnesses >= 0]))
+                                                                         replay_command(out, ids[ids >= 0]))
                                      + report.detectability_markdown(self.detectability, self.scenarios)
                                      + report.stall_scoring_markdown(self.scenarios)
-                                     + report.drivers_markdown(*self.drivers(), replay=_replay(
+                                     + report.drivers_markdown(*self.drivers(), replay=replay_command(
                                          out, self.drivers()[1]["scenario_id"].drop_duplicates()))
                                      + report.figures_markdown(drawn, left_out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
-
-
-def _replay(folder, ids) -> str:
-    """The command replaying ``ids`` of the campaign in ``folder``, or '' without ids."""
-    return replay_command(folder, ids) if len(ids) else ""
 
 
 @contextlib.contextmanager

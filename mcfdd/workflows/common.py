@@ -93,8 +93,9 @@ def compile_cache(folder=None) -> Path | None:
 
 def replay_command(folder, ids) -> str:
     """The command replaying scenarios ``ids`` of the campaign in ``folder`` (:mod:`mcfdd.workflows.replay`), e.g.
-    ``mcfdd replay results/x --scenarios 481,3524``."""
-    return f"mcfdd replay {shlex.quote(str(folder))} --scenarios {','.join(str(int(i)) for i in ids)}"
+    ``mcfdd replay results/x --scenarios 481,3524``; '' without ids."""
+    ids = ",".join(str(int(i)) for i in ids)
+    return f"mcfdd replay {shlex.quote(str(folder))} --scenarios {ids}" if ids else ''
 
 
 def save_figure(fig, path: Path) -> Path:

@@ -114,21 +114,6 @@ def _same(a, b) -> bool:
     return a.tobytes() == b.tobytes() if a.dtype.kind in "biufc" else bool(np.array_equal(a, b))
 
 
-def _line(row) -> str:
-    """One replayed scenario's verdicts (a row of its scenario table), as ``mcfdd replay`` prints them."""
-    from mcfdd.report import FAULT_BANDS, value_text
-
-    def at(column):
-        return value_text(float(row[column]) if np.isfinite(row[column]) else float("nan"), ".2f", " s")
-
-    size = f" {row['fault_size']:.3g}" if row["fault_kind"] in FAULT_BANDS else ""
-    onset = "" if row["fault_kind"] == "none" else f" at {row['fault_onset_s']:.3g} s"
-    return (f"scenario {row['scenario_id']}: {row['fault_kind']}{size}{onset}, {row['manoeuvre_kind']}; false alarm "
-            f"{at('false_alarm_time_s')}, detection {at('detection_time_s')}, identified model "
-            f"{row['identified_model']} ({at('identification_time_s')}), largest fault-free ratio before the fault "
-            f"{value_text(float(row['loe_ratio0_max_pre']))}, status {row['status']}")
-
-
 class ReplayResult:
     """Scenarios of a campaign simulated again: their time histories and their outcome columns.
 
@@ -183,7 +168,9 @@ class ReplayResult:
 
     def lines(self) -> list[str]:
         """What ``mcfdd replay`` prints: each run's outcomes and whether they equal the campaign's rows."""
-        lines = [_line(row) for _, row in self.outcomes.iterrows()]
+        from mcfdd import console
+
+        lines = [console.replay_line(row) for _, row in self.outcomes.iterrows()]
         differ = self.differences()
         lines.append(f"replayed outcome columns: all {len(self.rows.columns)} equal the campaign's rows bit for bit"
                      if not differ else f"replayed outcome columns differing from the campaign's rows: "

@@ -197,9 +197,9 @@ def markdown(result: SensitivityResult, drawn, folder=None) -> str:
                   for _, g in result.screen.groupby(["outcome", "stratum"], sort=False)
                   for r in g.head(TOP).itertuples()]
         lines.append("")
-    ids = result.witnesses["scenario_id"].drop_duplicates()
+    ids = result.witnesses["scenario_id"].drop_duplicates() if folder is not None else ()
     lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs",
-                                      replay=replay_command(folder, ids) if folder is not None and len(ids) else "")]
+                                      replay=replay_command(folder, ids))]
     if result.notes:
         lines += ["## Notes", ""] + [f"- {n}." for n in result.notes] + [""]
     lines += ["## Figures", ""] + [f"- `{name}.png`: {PLOTS[name]}" for name in drawn]
