@@ -107,7 +107,9 @@ def cmd_replay(args) -> int:
     import mcfdd
     from mcfdd import flags, io
 
-    result = mcfdd.replay(args.campaign_dir, flags.scenario_ids(args.scenarios))
+    ids = flags.scenario_ids(args.scenarios)
+    _start_runtime()
+    result = mcfdd.replay(args.campaign_dir, ids)
     _written(result.save(io.out_dir("replay", args.campaign_dir, args.out)))
     _print(result.lines())
     return 0
@@ -196,23 +198,9 @@ def _command(sub, name: str, func, summary: str, example: str | None, out: str):
     return p
 
 
-def _cluster_flags(p):
-    """Where a campaign's chunks run (Dask distributed) and where compiled programs are kept."""
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDR", help="run the chunks on the Dask cluster of this scheduler, "
-                       "e.g. tls://HOST:8786 (tcp:// only inside a trusted network)")
-    where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local Dask cluster of N worker "
-                       "processes (127.0.0.1 only), closed at the end")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to reach --scheduler and then to wait for a worker (default 10)")
-    for flag, what in (("--tls-ca-file", "CA certificate"), ("--tls-cert", "client certificate"),
-                       ("--tls-key", "client certificate's key")):
-        p.add_argument(flag, metavar="FILE", help=f"TLS {what} for a tls:// scheduler (default: Dask's configuration)")
-    p.add_argument("--compile-cache", metavar="DIR|off", help="folder of JAX's persistent compilation cache, here "
-                   "and on the workers (default ~/.cache/mcfdd/jax); 'off' to compile every time")
-
-
 def build_parser() -> argparse.ArgumentParser:
+    from mcfdd import flags
+
     parser = argparse.ArgumentParser(
         prog="mcfdd", description="Monte-Carlo robustness analysis of flight-actuator fault detection and diagnosis "
         "(Ossmann and Varga, 2015): simulate, fit LPV models, run campaigns, tune, search worst cases.")
@@ -230,14 +218,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set fdd.loe.detection_tau=0.12 (the "
                    "detection threshold; repeatable)")
-    _cluster_flags(p)
+    flags.cluster_flags(p)
     p = _command(sub, "sensitivity", cmd_sensitivity, "what drives the verdicts: Sobol' indices, gradient screen "
                  "and regional sensitivity over a campaign space ([sensitivity] table)", "fault_free.toml",
                  "a new results/sensitivity-<config>[-N]")
     p.add_argument("--resume", action="store_true", help="continue the interrupted design runs in --out")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key by its dotted path, e.g. --set sensitivity.samples=64 (repeatable)")
-    _cluster_flags(p)
+    flags.cluster_flags(p)
     p = _command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
                  "McNemar's exact test per outcome, detection-time differences", None,
                  "results/compare-<a>-vs-<b>")
