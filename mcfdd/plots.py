@@ -52,7 +52,7 @@ def _event_times(row) -> dict:
 
 
 def replay_run(df: pd.DataFrame, row, models, detection_tau: float) -> Figure:
-    """A replayed campaign run: deflections with stall loads, the LOE ratios theta_i / ||u|| (excited samples) against
+    """A replayed campaign run: deflections with stall loads, the LOE ratios theta_i / ||u|| (where excited) against
     the detection threshold, the decisions, the stall detector; the campaign's onset, alarm, detection and
     identification times (``row``, its scenario-table row) marked in every panel."""
     t = df["t_s"].to_numpy()
@@ -65,11 +65,12 @@ def replay_run(df: pd.DataFrame, row, models, detection_tau: float) -> Figure:
     size = f" {row['fault_size']:.3g}" if row["fault_kind"] not in ("none", "jamming") else ""
     ax1.set_title(f"scenario {row['scenario_id']}: {row['fault_kind']}{size}, {row['manoeuvre_kind']}, "
                   f"{row['vcas_kt']:.0f} kt, {row['altitude_m']:.0f} m")
+    excited = df["excited"].to_numpy(dtype=bool)
+    ratios = np.where(excited[:, None], df[[f"ratio_{i}" for i in range(len(models))]].to_numpy(), np.nan)
     for i, name in enumerate(models):
-        ax2.plot(t, df[f"ratio_{i}"], label=name, lw=1.2 if i == 0 else 0.8)
+        ax2.plot(t, ratios[:, i], label=name, lw=1.2 if i == 0 else 0.8)
     ax2.axhline(detection_tau, color="k", ls=":", lw=1.0, label=f"detection_tau {detection_tau:g}")
-    _shade(ax2, t, ~df["excited"].to_numpy(dtype=bool), color="0.85", alpha=0.6, label="not excited")
-    ratios = df[[f"ratio_{i}" for i in range(len(models))]].to_numpy()
+    _shade(ax2, t, ~excited, color="0.85", alpha=0.6, label="not excited")
     if (ratios[np.isfinite(ratios)] > 0).any():
         ax2.set_yscale("log")
     ax2.set_ylabel("theta_i / ||u||")

@@ -84,7 +84,7 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     for i in range(len(names)):
         columns[f"r_{i}"] = fdd.r[..., i]
         columns[f"theta_{i}"] = fdd.theta[..., i]
-        columns[f"ratio_{i}"] = np.where(fdd.excited, fdd.ratio[..., i], np.nan)
+        columns[f"ratio_{i}"] = fdd.ratio[..., i]
         columns[f"iota_{i}"] = fdd.iota[..., i]
     eta = fdd.eta_signal if fdd_cfg.stall.identification == "signal" else fdd.eta_model
     columns.update({
@@ -131,8 +131,8 @@ class Histories:
 
     def to_pandas(self):
         """Tidy table, one row per (run, sample): ``run``, ``t_s`` and one column per signal (units in the names;
-        per filter i ``r_i``, ``theta_i``, ``iota_i`` and ``ratio_i`` = theta_i / ||u|| while excited, else nan; the
-        signed margins of detection and of eta per method, positive where the decision is set)."""
+        per filter i ``r_i``, ``theta_i``, ``iota_i`` and ``ratio_i`` = theta_i / ||u|| (decisions are made only where
+        ``excited``); the signed margins of detection and of eta per method, positive where the decision is set)."""
         return self._frame
 
     def summary(self):
