@@ -76,7 +76,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mcfdd import config, io  # noqa: E402
+from mcfdd import config, flags, io  # noqa: E402
 from mcfdd.analysis import campaign, noise, scoring, simulate  # noqa: E402
 from mcfdd.compute import once  # noqa: E402
 from mcfdd.fdd import lpv  # noqa: E402
@@ -855,7 +855,7 @@ def main(argv=None):
         family_chunks(args)
         return
     if args.hlo_lines is not None:
-        overrides = config.campaign_overrides(args.set, {}, None)
+        overrides = flags.campaign_overrides(args.set, {}, None)
         rows = hlo_lines(Problem(args.scenarios, args.steps, args.chunk_size, overrides=overrides).device_program(),
                          HLO_BATCH)
         print(f"step loop of device_batch ({HLO_BATCH} scenarios x {HLO_STEPS} steps): "

