@@ -566,3 +566,31 @@ def ranked_bars(df: pd.DataFrame, series, xlabel: str, top: int = 10, log: bool 
         axes.flat[0].legend(loc="lower right", fontsize=8)
     fig.supxlabel(xlabel, fontsize=9)
     return fig
+
+
+def detection_tuning_history(history: pd.DataFrame) -> Figure:
+    """Detection-level tuning: the gap tau_d - tau_f per iteration (hard and smooth), the training false alarms
+    and missed detections, and the tuned parameters relative to their start. One row of ``history`` per iteration."""
+    fig = Figure(figsize=(10, 7), constrained_layout=True)
+    ax1, ax2, ax3 = fig.subplots(3, 1, sharex=True)
+    it = history["iteration"]
+    ax1.plot(it, history["gap"], "o-", ms=3, label="tau_d - tau_f (hard)")
+    ax1.plot(it, history["smooth_gap"], "--", label="smooth surrogate")
+    ax1.plot(it, history["tau_f"], lw=0.8, label="tau_f: largest false-alarm margin")
+    ax1.plot(it, history["tau_d"], lw=0.8, label="tau_d: smallest detection margin (must-detect runs)")
+    ax1.axhline(0.0, color="k", lw=0.8)
+    ax1.set_ylabel("theta_0 / ||u||")
+    ax1.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    ax2.plot(it, history["false_alarms"], "o-", ms=3, label="false alarms (runs)")
+    ax2.plot(it, history["missed"], "s-", ms=3, label="must-detect runs missed")
+    ax2.set_ylabel("training runs")
+    ax2.legend(fontsize=8)
+    skip = {"iteration", "smooth_gap", "tau_f", "tau_d", "gap", "false_alarms", "missed", "detection_time_s"}
+    for name in (c for c in history.columns if c not in skip):
+        ax3.plot(it, history[name] / history[name].iloc[0], label=name)
+    ax3.set_ylabel("parameter / start")
+    ax3.set_xlabel("iteration")
+    ax3.legend(fontsize=8, ncol=4, loc="upper left", bbox_to_anchor=(0.0, -0.25))
+    for ax in (ax1, ax2, ax3):
+        ax.grid(alpha=0.3)
+    return fig

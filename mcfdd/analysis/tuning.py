@@ -205,9 +205,10 @@ class Result(NamedTuple):
     bounds: list
 
 
-def tune(gap_and_grad_fn, theta0: Tunable, iterations: int, learning_rate: float, callback=None) -> Result:
-    """Adam ascent of the smooth log gap (:func:`mcfdd.analysis.optimise.run`). ``gap_and_grad_fn(theta)``
-    returns (gap, bounds, gradient); ``callback(i, gap, bounds)`` sees every evaluation. Evaluations:
+def tune(gap_and_grad_fn, theta0, iterations: int, learning_rate: float, callback=None) -> Result:
+    """Adam ascent of a smooth gap (:func:`mcfdd.analysis.optimise.run`) from ``theta0`` (a :class:`Tunable`,
+    or the dict of :mod:`mcfdd.analysis.detection_tuning`). ``gap_and_grad_fn(theta)`` returns (gap, bounds,
+    gradient); ``callback(i, gap, bounds)`` sees every evaluation. Evaluations:
     iterations + 1."""
     def fn(theta):
         gap, b, grad = gap_and_grad_fn(theta)

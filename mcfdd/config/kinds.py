@@ -254,6 +254,23 @@ class TuneSettings(Section):
     threshold_candidates: int = spec(32, lo=2, hi=1000,
                                      doc="thresholds compared on the training set when the gap stays negative")
     tune_pole: bool = spec(True, doc="tune the filter pole a besides alpha, beta, gamma")
+    level: choice(("identification", "detection")) = spec(
+        "identification", doc="LOE bank: identification tunes the evaluator and pole for the signature's gap and "
+        "places tau; detection tunes the detection level (detection_tau, detection_contrast, excitation floor and "
+        "noise factor, evaluator, pole) on the detection monitor's margins")
+    must_detect: choice(("separable", "all")) = spec(
+        "separable", doc="detection level: tau_d over the faulty runs that must be detected and are separable "
+        "(the fault's gain distance at the peak load above the uncertainty's), or over all of them")
+    must_detect_kinds: tuple[choice(columns.PARAMETRIC), ...] = spec(
+        (), doc="detection level: tau_d only over these fault kinds (empty: every parametric kind)")
+    min_peak_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="detection level: tau_d only over runs whose "
+                                         "peak hinge-load fraction after the onset is at least this")
+    tune_confirmation: bool = spec(False, doc="detection level: tune detection_confirm_s too")
+    scan_scales: tuple[float, float] = spec((0.5, 2.5), doc="detection level: the detection thresholds are "
+                                            "scaled by threshold_candidates factors spaced geometrically over "
+                                            "this range, each scored on the training set")
+    safety: float = spec(1.1, lo=1.0, hi=10.0, doc="detection level: the chosen factor is the smallest from "
+                         "which no candidate alarms on the training set, times this")
 
 
 class TuneConfig(Scored):
@@ -273,10 +290,12 @@ class TuneConfig(Scored):
         if self.validation.precision != self.training.precision:
             raise Invalid("validation.precision", f"{self.validation.precision!r} differs from training.precision "
                                                   f"{self.training.precision!r}")
-        if self.plant.aircraft.model != "roll_axis":
-            raise Invalid("plant.aircraft.model", f"{self.plant.aircraft.model!r}; mcfdd tune replays stored "
-                                                  f"histories at each run's initial flight point, so it supports "
-                                                  f"\"roll_axis\" only")
+        t = self.tune
+        if t.level == "detection" and t.detector != "loe":
+            raise Invalid("tune.level", f"'detection' is the LOE bank's level; tune.detector is {t.detector!r}")
+        lo, hi = t.scan_scales
+        if not 0.0 < lo < hi:
+            raise Invalid("tune.scan_scales", f"{[lo, hi]}; expected 0 < low < high")
         for split in ("training", "validation"):
             self.check_space(getattr(self, split), split)
 

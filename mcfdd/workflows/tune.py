@@ -72,6 +72,8 @@ class TuneResult:
         self.validation = validation
         self.threshold_scan, self.campaigns, self.compilations = threshold_scan, campaigns, compilations
         self.report_text, self.units, self.meta, self._source = report_text, units, meta, source
+        self.level = "identification" if detector == "loe" else "stall"
+        self.comparison = None  # detection level: the held-out campaigns before and after, paired (CompareResult)
 
     def plot(self, name: str = "history"):
         """'history': tau_f, tau_d and the normalised gap over the iterations, a matplotlib Figure."""
@@ -79,13 +81,17 @@ class TuneResult:
 
         if name != "history":
             raise ValueError(f"plot: {name!r} is not one of history")
+        if self.level == "detection":
+            return plots.detection_tuning_history(self.history)
         return plots.tuning_history(self.history, self.units)
 
     def fdd_toml(self, fragment_path) -> str:
         """The tuned ``[fdd]`` fragment as TOML text (``mcfdd campaign CONFIG --fdd FILE``)."""
         return config.fdd_fragment(self.fdd, (
-            f"FDD settings tuned by `mcfdd tune {self._source or 'CONFIG'}` ({self.detector} detector: evaluator, "
-            f"pole and threshold).\nUse with `mcfdd campaign CONFIG --fdd {fragment_path}`."))
+            f"FDD settings tuned by `mcfdd tune {self._source or 'CONFIG'}` ("
+            + ("LOE detection level: detection thresholds, excitation floor, evaluator and pole"
+               if self.level == "detection" else f"{self.detector} detector: evaluator, pole and threshold")
+            + f").\nUse with `mcfdd campaign CONFIG --fdd {fragment_path}`."))
 
     def save(self, out) -> list[Path]:
         """Write the files of ``mcfdd tune`` into ``out``: ``tuned_fdd.toml``, ``history.parquet``,
@@ -102,15 +108,39 @@ class TuneResult:
         written.append(save_figure(self.plot(), out / "history.png"))
         for label, result in self.campaigns.items():
             written.extend(result.save(out / "validation" / label, f"Held-out campaign, FDD {label} tuning"))
+        if self.comparison is not None:
+            written.extend(self.comparison.save(out / "validation" / "compare"))
         return written
+
+
+def held_out(cfg: config.TuneConfig, tuned: config.FddConfig, deg_per_m: float, progress: bool):
+    """The held-out campaign with the configured FDD ('before') and ``tuned`` ('after'), one compilation.
+
+    Returns (campaigns by label, XLA compilations by label, seconds, :func:`mcfdd.report.validation_table`).
+    """
+    campaigns, compiles = {}, {}
+    start = time.perf_counter()
+    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
+        note(f"held-out campaign, FDD {label} tuning", progress)
+        with CompileCounter() as counter:
+            campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
+        compiles[label] = counter.count
+    seconds = time.perf_counter() - start
+    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
+                                         cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
+    return campaigns, compiles, seconds, validation
 
 
 def tune(cfg, progress: bool = True) -> TuneResult:
     """Tune one detector's evaluator (alpha, beta, gamma), pole and threshold by gradient.
 
-    The plant histories of the training campaign are simulated once; the detector's parameters
-    follow Adam on the smooth log(tau_d / tau_f) through an FDD-only scan; tau is placed in the
-    gap; the held-out campaign runs with the FDD before and after, in one compilation.
+    With ``tune.level = "detection"`` (LOE bank) the detection level is tuned instead
+    (:mod:`mcfdd.workflows.tune_detection`: detection thresholds, excitation floor, evaluator, pole on
+    the detection monitor's margins; ``threshold_scan`` is then the Pareto scan of the thresholds and
+    ``comparison`` the held-out campaigns' paired comparison). Otherwise the plant histories of the
+    training campaign are simulated once; the detector's parameters follow Adam on the smooth
+    log(tau_d / tau_f) through an FDD-only scan; tau is placed in the gap; the held-out campaign
+    runs with the FDD before and after, in one compilation.
 
     Args:
         cfg: a 'tune' config (:func:`mcfdd.load_config`), or a TOML path or dict of one.
@@ -131,6 +161,10 @@ def tune(cfg, progress: bool = True) -> TuneResult:
     source = cfg if isinstance(cfg, (str, Path)) else None
     cfg = as_config(cfg, "tune")
     with precision(cfg.training.precision):
+        if cfg.tune.level == "detection":
+            from mcfdd.workflows.tune_detection import tune_detection  # it builds on this module's TuneResult
+
+            return tune_detection(cfg, source, progress)
         return _tune(cfg, source, progress)
 
 
@@ -195,16 +229,7 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
         ("gamma_1_s", old.evaluator.gamma_1_s, new.evaluator.gamma_1_s), ("pole_1_s", old.pole_1_s, new.pole_1_s),
         (tau_key, getattr(old, tau_key), getattr(new, tau_key)))])
 
-    campaigns, compiles = {}, {}
-    start = time.perf_counter()
-    for label, fdd_cfg in (("before", cfg.fdd), ("after", tuned)):
-        note(f"held-out campaign, FDD {label} tuning", progress)
-        with CompileCounter() as counter:
-            campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
-        compiles[label] = counter.count
-    t_val = time.perf_counter() - start
-    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
-                                         cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
+    campaigns, compiles, t_val, validation = held_out(cfg, tuned, deg_per_m, progress)
     meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
     notes = [f"Tuning of the {det} detector by gradient through the FDD over {n} stored plant histories of "
              f"{tr.duration_s} s (training seed {tr.seed}; plant simulated once in {t_plant:.1f} s). Objective: smooth "

@@ -1,0 +1,228 @@
+"""Tuning of the LOE detection level (issue 22): the smooth tau_f / tau_d against the hard monitors, the
+must-detect predicate, the Pareto set and the chosen threshold against brute force, bad config keys, the
+tuner on the full aircraft, and the command end to end at a tiny size.
+
+The smooth bounds are nested log-sum-exps (over a run's samples, then over runs) at temperature T,
+so closed-form bounds hold: the smooth maximum of n values lies in [max, max + T log n] and the
+smooth minimum in [min - T log n, min]; with a run's smooth statistic at most T log(steps) above its
+hard one, tau_f <= smooth tau_f <= tau_f + T (log steps + log runs) and tau_d - T log runs <=
+smooth tau_d <= tau_d + T log steps.
+"""
+
+import math
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from mcfdd import cli, config
+from mcfdd.analysis import build, detection_tuning as dt, metrics
+from mcfdd.workflows.common import load_bank
+from mcfdd.workflows.tune import training_set
+
+DT_S = 0.01
+TINY = """
+[tune]
+detector = "loe"
+level = "detection"
+iterations = {iterations}
+temperature = 0.005
+threshold_candidates = 4
+must_detect = "all"
+
+[training]
+scenarios = 8
+grid = ["fault_kind"]
+seed = 3
+duration_s = {duration}
+precision = "float64"
+
+[validation]
+scenarios = 8
+grid = ["fault_kind"]
+seed = 4
+duration_s = {duration}
+precision = "float64"
+
+[evaluation]
+settle_s = 0.5
+
+[fdd.loe]
+excitation_noise_factor = 2.5
+excitation_floor_deg = 0.05
+detection_tau = 0.04
+detection_contrast = 0.03
+detection_confirm_s = 0.2
+
+[plant.aircraft]
+model = "{model}"
+
+[space]
+vcas_kt = [300.0, 350.0]
+altitude_m = [1000.0, 2000.0]
+noise_std_mm = [0.03, 0.07]
+fault_kind = ["none", "leakage", "surface_damage", "disconnection"]
+fault_onset_s = [1.0, 1.5]
+manoeuvre_kind = "doublet"
+amplitude = [0.7, 1.0]
+t_start_s = [1.5, 2.0]
+duration_s = [1.0, 1.5]
+"""
+
+
+def tiny(tmp_path, iterations=1, duration=5.0, model="roll_axis"):
+    path = tmp_path / "tune.toml"
+    path.write_text(TINY.format(iterations=iterations, duration=duration, model=model))
+    return path
+
+
+def problem(cfg):
+    model = build.plant_model(cfg.plant)
+    bank, _ = load_bank(cfg.fdd, np.float64)
+    r_arm = model.actuator.r_arm_m
+    data, n = training_set(cfg.campaign("training"), model, bank, np.float64)
+    return build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm), data, n
+
+
+@pytest.fixture(scope="module")
+def roll(tmp_path_factory):
+    cfg = config.load(config.TuneConfig, tiny(tmp_path_factory.mktemp("roll")))
+    params, settings, data, n = problem(cfg)
+    columns = jax.device_get(dt.evaluate_columns(params, settings, data, DT_S))
+    return cfg, params, settings, data, n, columns
+
+
+def test_smooth_bounds_tend_to_the_hard_monitors_as_temperature_falls(roll):
+    cfg, params, settings, data, n, columns = roll
+    must = np.array(columns["must_detect"])
+    assert must.sum() >= 2
+    steps = cfg.training.n_steps
+    errors = []
+    for temperature in (0.02, 0.002, 0.0002):
+        b = jax.device_get(dt.evaluate(params, settings, data, must, temperature, DT_S))
+        assert b["tau_f"] - 1e-12 <= b["soft_free"] <= b["tau_f"] + temperature * (math.log(steps) + math.log(n))
+        assert (b["tau_d"] - temperature * math.log(n) - 1e-12 <= b["soft_detect"]
+                <= b["tau_d"] + temperature * math.log(steps) + 1e-12)
+        errors.append((abs(b["soft_free"] - b["tau_f"]), abs(b["soft_detect"] - b["tau_d"])))
+    assert np.all(np.diff(np.array(errors), axis=0) <= 1e-12)
+    assert max(errors[-1]) < 3e-3
+
+
+def test_tau_d_is_taken_over_the_must_detect_runs_only(roll):
+    cfg, params, settings, data, n, columns = roll
+    must = np.array(columns["must_detect"])
+    stat = -np.asarray(columns["missed_margin"])
+    for mask in (must, must & (np.arange(n) % 2 == 0), must & (np.arange(n) % 2 == 1)):
+        if not mask.any():
+            continue
+        b = jax.device_get(dt.evaluate(params, settings, data, mask, 1e-4, DT_S))
+        assert b["tau_d"] == pytest.approx(np.min(stat[mask]), abs=1e-12)
+        assert b["soft_detect"] == pytest.approx(np.min(stat[mask]), abs=1e-3)
+        assert b["missed"] == np.sum(np.asarray(columns["missed"]) & mask)
+        # tau_f and the false alarms do not depend on the mask: every valid run counts
+        assert b["tau_f"] == pytest.approx(np.max(np.asarray(columns["false_alarm_margin"])), abs=1e-12)
+        assert b["false_alarms"] == np.sum(columns["false_alarm"])
+
+
+def test_must_detect_predicate_by_kind_load_and_separability():
+    rng = np.random.default_rng(0)
+    n = 200
+    kinds = rng.choice(["none", "leakage", "surface_damage", "disconnection"], n)
+    design = {"fault_kind": kinds, "fault_size": rng.uniform(0.1, 1.0, n), "kci_scale": rng.uniform(0.97, 1.03, n),
+              "supply_pressure_scale": rng.uniform(0.98, 1.02, n), "hinge_scale": rng.uniform(0.9, 1.1, n)}
+    peak = rng.uniform(0.0, 0.8, n)
+    columns = {"must_detect": (kinds != "none") & (rng.uniform(size=n) < 0.9), "peak_load_fraction": peak}
+    ranges = metrics.uncertainty_ranges(design)
+    mask = dt.must_detect_mask(columns, design, ranges, "all", ("disconnection",), 0.4)
+    assert np.array_equal(mask, columns["must_detect"] & (kinds == "disconnection") & (peak >= 0.4))
+    separable = np.asarray(metrics.detectability_columns(design, peak, ranges)["separable"])
+    both = dt.must_detect_mask(columns, design, ranges, "separable", (), 0.0)
+    assert np.array_equal(both, columns["must_detect"] & separable)
+    assert 0 < both.sum() < columns["must_detect"].sum()
+
+
+def test_pareto_set_and_choice_against_brute_force():
+    rng = np.random.default_rng(1)
+    fa, missed, time = rng.integers(0, 4, 30), rng.integers(0, 4, 30), rng.choice([1.0, 2.0, np.nan], 30)
+    front = dt.pareto(fa, missed, time)
+    t = np.nan_to_num(time, nan=np.inf)
+    for i in range(30):
+        dominated = any(fa[j] <= fa[i] and missed[j] <= missed[i] and t[j] <= t[i]
+                        and (fa[j], missed[j], t[j]) != (fa[i], missed[i], t[i]) for j in range(30))
+        assert front[i] == (not dominated)
+    scales = np.array([0.5, 0.7, 1.0, 1.4, 2.0])
+    assert dt.choose(scales, [3, 0, 1, 0, 0], 1.1) == pytest.approx(1.4 * 1.1)
+    assert dt.choose(scales, [0, 0, 0, 0, 0], 1.0) == pytest.approx(0.5)
+    assert dt.choose(scales, [2, 2, 1, 1, 1], 1.2) == pytest.approx(2.0 * 1.2)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[tune]\ndetector = 'stall'\nlevel = 'detection'\n", "tune.level"),
+    ("[tune]\nlevel = 'signature'\n", "tune.level"),
+    ("[tune]\nmust_detect_kinds = ['jamming']\n", r"tune.must_detect_kinds\[0\]"),
+    ("[tune]\nmust_detect = 'some'\n", "tune.must_detect"),
+    ("[tune]\nscan_scales = [2.0, 1.0]\n", "tune.scan_scales"),
+    ("[tune]\nsafety = 0.5\n", "tune.safety"),
+    ("[tune]\nmin_peak_load_fraction = 1.5\n", "tune.min_peak_load_fraction"),
+])
+def test_bad_detection_tune_keys_are_named_in_one_line(tmp_path, capsys, text, key):
+    path = tmp_path / "bad.toml"
+    path.write_text(text + "[space]\nvcas_kt = [200.0, 300.0]\n")
+    with pytest.raises(config.ConfigError, match=key.replace(".", r"\.")):
+        config.load(config.TuneConfig, path)
+    assert cli.main(["tune", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and key.replace("\\", "") in err[0]
+
+
+def test_tuner_runs_on_the_full_aircraft(tmp_path):
+    cfg = config.load(config.TuneConfig, tiny(tmp_path, duration=3.0, model="rcam"))
+    params, settings, data, n = problem(cfg)
+    vcas = np.asarray(data.plant.vcas_m_s)
+    assert np.ptp(vcas, axis=1).max() > 0.0  # the flight point moves within a run: the FDD schedules on it
+    must = np.ones(n, bool)
+    theta = dt.initial(params, dt.names(params.loe, True, False))
+    value, b, grad = jax.device_get(dt.gap_and_grad(theta, params, settings, data, must, 0.005, DT_S))
+    assert np.isfinite(value) and np.isfinite(b["tau_f"])
+    assert all(np.isfinite(g) for g in grad.values()) and any(g != 0.0 for g in grad.values())
+
+
+def test_detection_tuning_end_to_end(tmp_path):
+    import mcfdd
+
+    result = mcfdd.tune(tiny(tmp_path, iterations=2, duration=3.0), progress=False)
+    scan = result.threshold_scan
+    assert scan["chosen"].sum() == 1 and scan["pareto"].any()
+    chosen = scan[scan["chosen"]].iloc[0]
+    assert result.fdd.loe.detection_tau == pytest.approx(chosen["detection_tau"], rel=1e-5)
+    assert list(result.validation["fdd"]) == ["before", "after"]
+    assert set(result.comparison.outcomes["outcome"]) >= {"loe_false_alarm", "missed_disconnection_loaded"}
+    written = result.save(tmp_path / "out")
+    assert (tmp_path / "out" / "validation" / "compare" / "compare.md") in written
+    fragment = config.load_fdd_fragment(tmp_path / "out" / "tuned_fdd.toml")
+    assert fragment == result.fdd
+
+
+def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs():
+    root = Path(__file__).resolve().parents[1] / "configs"
+    cfg = config.load(config.TuneConfig, root / "tune_validation.toml")
+    shipped = config.load(config.CampaignConfig, root / "validation.toml")
+    assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
+    cells = len(cfg.values("fault_kind"))
+    assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
+    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation
+
+
+def test_settings_turned_off_stay_off():
+    fdd = config.replace(config.FddConfig(), {"loe.detection_contrast": 0.0, "loe.excitation_floor_deg": 0.0,
+                                              "loe.excitation_noise_factor": 2.0, "loe.detection_confirm_s": 0.0})
+    bank, _ = load_bank(fdd, np.float64)
+    params = build.fdd_params(fdd, bank, 0.1)
+    tuned = dt.names(params.loe, False, True)
+    assert tuned == ("alpha", "beta", "gamma_1_s", "detection_tau", "excitation_noise_factor")
+    theta = dt.initial(params, tuned)
+    assert float(np.exp(theta["alpha"])) == pytest.approx(1e-3 * fdd.loe.evaluator.beta)
+    back = dt.apply(params, theta, 2.0).loe
+    assert back.detection_contrast == 0.0 and back.excitation_floor == 0.0 and back.detection_confirm_s == 0.0
+    assert float(back.detection_tau) == pytest.approx(2.0 * fdd.loe.detection_tau)
