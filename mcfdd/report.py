@@ -307,6 +307,24 @@ def search_summary(df: pd.DataFrame, value: str, bound: str, run_time_s: dict) -
     return pd.DataFrame(rows)
 
 
+def search_verdict(summ: pd.DataFrame, value: str, bound: str, restarted: int, pool_left: int) -> str:
+    """Whether the gradient search found a worse bound than Monte Carlo at equal run time, and if not, what the
+    search's own record shows (``summ``: :func:`search_summary`; starts replaced and pool points left unused)."""
+    by = summ.set_index("method")[value]
+    grad, mc = by.iloc[0], by["Monte Carlo, equal run time"]
+    name, worse = ("tau_f", "larger") if bound == "free" else ("tau_d", "smaller")
+    if not np.isfinite(grad) or not np.isfinite(mc):
+        return f"No comparison at equal run time: a method found no run with the bound ({grad}, {mc})."
+    if (grad > mc) if bound == "free" else (grad < mc):
+        return (f"At equal run time the gradient search's {name} ({_fmt(grad, 5)}) is {worse} than Monte Carlo's "
+                f"({_fmt(mc, 5)}): the search found a worse case.")
+    return (f"At equal run time the gradient search's {name} ({_fmt(grad, 5)}) is not {worse} than Monte Carlo's "
+            f"({_fmt(mc, 5)}): the search did not earn its cost here. Its starts were replaced {restarted} times "
+            f"({pool_left} screened runs with the event left); a worst case in another categorical cell than the "
+            f"starts' (manoeuvre family, turbulence level) or on a plateau of the smooth statistic (no gradient) is "
+            f"out of its reach; more starts or screening move it there.")
+
+
 def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value: str, bound: str, parameters, notes,
                         meta: dict) -> str:
     """Report of a worst-case search: methods compared, the worst scenarios, progress per start.

@@ -268,6 +268,20 @@ def numpy_pending_chain(rec: Recorded, i: int, w: dict, method: str):
     return min(found, pending)
 
 
+def numpy_stall_memory(rec: Recorded, i: int, w: dict):
+    """Per sample, the part of the stall detector's theta driven by the residual of the samples that are
+    not clear (within stall loads and their grace time): eq. (14) run on that residual alone."""
+    ev = rec.fdd_params.stall.evaluator
+    r = np.abs(rec.signal("r_stall", i))
+    memory, t_last, out = 0.0, 0.0, np.zeros(rec.n_steps)
+    for k in range(rec.n_steps):
+        masked = 0.0 if w["clear"][k] else r[k]
+        out[k] = memory + ev.alpha * masked
+        decay = np.exp(-ev.gamma * (rec.t[k] - t_last))
+        memory, t_last = decay * memory + ev.beta * (1.0 - decay) / ev.gamma * masked, rec.t[k]
+    return out
+
+
 def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
     rec = harsh
     s, t = rec.settings, rec.t
@@ -280,7 +294,7 @@ def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
     names += [f"stall_worst_latency_{m}_s" for m in ("signal", "model")]
     names += [f"eta_false_{m}{k}" for m in ("signal", "model") for k in ("", "_time_s", "_margin")]
     expected = {k: [] for k in names}
-    explained = 0
+    explained = remembered = 0
     for i in range(rec.n):
         w = numpy_windows(rec, i)
         ok = w["ok"]
@@ -295,7 +309,8 @@ def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
         below = (tau - peak_min) * (1.0 / tau)
         expected["stall_missed_detection_margin"].append((max(below, tiny) if peak_min < tau else min(below, -tiny))
                                                          if ok else np.nan)
-        free = largest(theta, w["quiet"])
+        free = largest(theta - numpy_stall_memory(rec, i, w), w["quiet"])
+        remembered += largest(theta, w["quiet"]) > free
         fired = ok and free >= tau
         expected["stall_theta_max_free"].append(nan_if_not_finite(free))
         expected["stall_false_detection"].append(fired)
@@ -327,8 +342,12 @@ def test_stall_monitors_equal_a_numpy_scoring_of_the_recorded_signals(harsh):
         jam_time = first_time(t, jam)
         expected["jam_taken_for_stall"].append(ok and np.isfinite(jam_time))
         expected["jam_taken_for_stall_time_s"].append(nan_if_not_finite(jam_time))
-    assert_columns(rec, expected)
+    free = ("stall_theta_max_free", "stall_false_detection_margin")  # exp of XLA and NumPy may differ in the last bit
+    assert_columns(rec, {k: v for k, v in expected.items() if k not in free})
+    for name in free:
+        np.testing.assert_allclose(rec.columns[name], expected[name], rtol=1e-12, atol=1e-15, err_msg=name)
     assert sum(expected["stall_events"]) > 0 and sum(expected["stall_identified_signal"]) > 0
+    assert remembered > 0  # some run's largest theta at a quiet sample was the memory of a stall load
     assert any(expected["jam_taken_for_stall"]) and any(expected["eta_false_signal"]), explained
     assert not all(expected["eta_false_signal"]) and any(expected["stall_false_detection"])
 
@@ -427,7 +446,7 @@ def test_every_margin_is_positive_exactly_for_its_flag_on_2048_runs(name):
         "space.duration_s": [2.0, 6.0], "space.hold_s": [1.0, 3.0], "space.vcas_kt": [300.0, 380.0],
         "space.hinge_scale": [1.1, 1.4], "evaluation.settle_s": 1.0, "evaluation.stall_grace_s": 0.2,
         "fdd.loe.detection_tau": 0.04, "fdd.loe.detection_contrast": 0.0, "fdd.loe.detection_confirm_s": 0.2,
-        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 2.0, "fdd.stall.model.tau_deg": 150.0,
+        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 1.4, "fdd.stall.model.tau_deg": 150.0,
         "fdd.stall.signal.rate_min_deg_s": 60.0, "fdd.stall.signal.command_min_deg": 2.0,
         "fdd.stall.signal.position_min_deg": 2.0, "fdd.stall.signal.error_min_deg": 0.2})
     with precision(name):

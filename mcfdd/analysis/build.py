@@ -100,6 +100,18 @@ def run_columns(run: config.RunConfig) -> dict:
     return {c.name: getattr(sections[c.owner[0]], c.owner[1]) for c in columns.TABLE}
 
 
+def run_entry(row: dict, name: str, seed: int, index: int) -> dict:
+    """A ``[[runs]]`` entry of a simulate config (plain values) from a scenario-table row: the inverse of
+    :func:`run_columns` (columns the row lacks keep their defaults), with the run key (seed, index)."""
+    entry = {"name": name, "seed": int(seed), "index": int(index), "fault": {}, "manoeuvre": {}}
+    for c in columns.TABLE:
+        if c.name in row:
+            value = row[c.name]
+            value = value.item() if isinstance(value, np.generic) else value
+            (entry if c.owner[0] == "run" else entry[c.owner[0]])[c.owner[1]] = value
+    return entry
+
+
 def sweep_table(sweep: config.SweepConfig) -> tuple[dict, list[str], np.ndarray, np.ndarray]:
     """Scenario columns of both Fig. 4 sweeps, run names, family ('surface'/'leakage') and size per run."""
     surface = np.linspace(0.0, 1.0, sweep.surface_points)
@@ -147,6 +159,10 @@ class DesignPlan:
     ranges: dict
     kinds: tuple
     keys: np.ndarray | None = None
+
+    def key_index(self, ids):
+        """The random-key index of scenario ids (a run's key is ``fold_in(key(seed), index)``)."""
+        return ids if self.keys is None else self.keys[ids]
 
 
 def design_plan(cfg: config.CampaignConfig, whole: np.ndarray | None = None, keys=None) -> DesignPlan:

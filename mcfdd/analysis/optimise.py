@@ -6,7 +6,9 @@ projects the parameters back onto their feasible set; every evaluation is kept. 
 only in the transformation: Adam with an exponentially decaying step for the LPV fit
 (:func:`mcfdd.analysis.lpv_fit.fit`), plain Adam for the tuner, and Adam with the backtracking of
 :func:`backtracking` for the multi-start worst-case search, whose score is -inf at an infeasible
-point.
+point. A multi-start run can also replace a start that reaches an infeasible point by the next
+point of a reserve (:class:`Restarts`: the worst-case search's next best screened point that has
+the event), with its optimiser state fresh.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 
@@ -30,7 +33,8 @@ class Trace(NamedTuple):
 
 
 def run(fn: Callable, params, optimiser: optax.GradientTransformation, iterations: int, *, maximize: bool = False,
-        evaluate_last: bool = True, project: Callable | None = None, callback: Callable | None = None) -> Trace:
+        evaluate_last: bool = True, project: Callable | None = None, callback: Callable | None = None,
+        restarts: Restarts | None = None) -> Trace:
     """``iterations`` updates of ``params`` by ``optimiser`` on the gradients of ``fn``.
 
     Args:
@@ -42,6 +46,10 @@ def run(fn: Callable, params, optimiser: optax.GradientTransformation, iteration
             evaluations; else ``iterations``).
         project: applied to the parameters after each update (a projection onto the feasible set).
         callback: ``callback(i, value, aux)`` after each evaluation.
+        restarts: for S starts at once (parameters (S, d), value (S,)): after each update, the
+            starts whose value was -inf move to the next reserve points (:meth:`Restarts.replace`)
+            and their rows of the optimiser state (every state leaf with a leading axis S) start
+            afresh; ``fn`` reads :attr:`Restarts.slots` to know which point each start is.
     """
     optimiser = _standard_promotion(optax.with_extra_args_support(optimiser))
     state = optimiser.init(params)
@@ -61,7 +69,47 @@ def run(fn: Callable, params, optimiser: optax.GradientTransformation, iteration
         params = optax.apply_updates(params, updates)
         if project is not None:
             params = project(params)
+        if restarts is not None:
+            params, replaced = restarts.replace(params, value)
+            if replaced.any():
+                state = _fresh_rows(optimiser.init(params), state, jnp.asarray(replaced))
     return trace._replace(final=params)
+
+
+class Restarts:
+    """The points of a multi-start run: S starts, then a reserve taken in order (``pool`` (P, d), P >= S).
+
+    ``slots`` (S,) is the pool index each start is at (0 .. S - 1 at first); a start whose value is
+    -inf moves to the next unused pool point while any is left (else it only backtracks).
+    """
+
+    def __init__(self, pool, starts: int):
+        self.pool = jnp.asarray(pool)
+        if not 1 <= starts <= self.pool.shape[0]:
+            raise ValueError(f"restarts: {starts} starts need 1 to {self.pool.shape[0]} pool points")
+        self.slots = np.arange(starts)
+        self.next = starts
+
+    def replace(self, params, value):
+        """(params with the infeasible starts at their new pool points, the replaced starts (S,) bool)."""
+        replaced = np.zeros(len(self.slots), bool)
+        for s in np.flatnonzero(~np.isfinite(np.asarray(value))):
+            if self.next == self.pool.shape[0]:
+                break
+            self.slots[s], self.next, replaced[s] = self.next, self.next + 1, True
+        if replaced.any():
+            params = jnp.where(jnp.asarray(replaced)[:, None], self.pool[self.slots].astype(params.dtype), params)
+        return params, replaced
+
+
+def _fresh_rows(fresh, state, rows):
+    """``state`` with the rows (leading axis S) of ``rows`` (S,) taken from ``fresh``."""
+    def pick(new, old):
+        if jnp.ndim(old) == 0 or jnp.shape(old)[0] != rows.shape[0]:
+            return old
+        return jnp.where(rows.reshape((-1,) + (1,) * (jnp.ndim(old) - 1)), new, old)
+
+    return jax.tree.map(pick, fresh, state)
 
 
 def _standard_promotion(tx: optax.GradientTransformationExtraArgs) -> optax.GradientTransformationExtraArgs:
@@ -91,24 +139,26 @@ class BacktrackingState(NamedTuple):
 
 
 def backtracking(learning_rate: float) -> optax.GradientTransformationExtraArgs:
-    """Adam for S starts at once (parameters (S, d), value (S,)) that backtracks from infeasible points.
+    """Adam for S starts at once (parameters (S, d), value (S,)), one per start, that backtracks from
+    infeasible points.
 
     The value is maximised (:func:`run` with ``maximize=True``); a value of -inf marks an infeasible
     point (e.g. no stall event left to measure): that start returns to its best feasible point and
     halves its step, which grows back by half after each feasible one (up to the Adam step).
     """
-    adam = optax.adam(learning_rate)
+    adam = optax.adam(learning_rate)  # one per start (its own step count), so a start can begin afresh
 
     def init(params):
-        return BacktrackingState(adam.init(params), params, jnp.full(params.shape[0], -jnp.inf, params.dtype),
-                                 jnp.ones(params.shape[0], params.dtype))
+        n = params.shape[0]
+        return BacktrackingState(jax.vmap(adam.init)(params), params, jnp.full(n, -jnp.inf, params.dtype),
+                                 jnp.ones(n, params.dtype))
 
     def update(updates, state: BacktrackingState, params, value=None, **extra):
         feasible = jnp.isfinite(value)
         better = feasible & (value > state.best)
         best_params = jnp.where(better[:, None], params, state.best_params)
         step = jnp.where(feasible, jnp.minimum(1.0, 1.5 * state.step), 0.5 * state.step)
-        moves, inner = adam.update(updates, state.inner, params)
+        moves, inner = jax.vmap(adam.update)(updates, state.inner, params)
         moves = step[:, None] * moves
         moves = jnp.where(feasible[:, None], moves, (best_params - params) + moves)
         return moves, BacktrackingState(inner, best_params, jnp.where(better, value, state.best), step)

@@ -7,29 +7,41 @@ Carlo as the cheap approximations. Here the closed loop and the FDD are differen
 worst case is searched by multi-start projected gradient ascent (Adam, optax) over the continuous
 scenario parameters, from the best points of a Sobol screening.
 
-Statistics are the scoring monitors' bounds (:data:`mcfdd.analysis.scoring.BOUNDS`: the stall
-detector's theta at the quiet samples and its least peak over relevant stall events; the LOE
-bank's fault-free ratio at the excited quiet samples and, over the detection window, the peak of
-the smallest ratio among the filters that must fire), run in the same scan as plant and FDD. The
-hard values are the campaign's columns; the search ascends their smooth versions, which the same
-monitors give with a temperature (a log-sum-exp on the logarithm of the statistic,
-:mod:`mcfdd.analysis.scoring.smooth`: T is relative, 0.05 about 5 %, and the same for every
-detector; as T -> 0 the smooth values tend to the hard ones).
+Statistics are the scoring monitors' columns (:func:`statistic`), run in the same scan as plant
+and FDD, so a witness's hard value is what a campaign of its scenario scores: the theta bounds of
+:data:`mcfdd.analysis.scoring.BOUNDS` (the stall detector's theta at the quiet samples, less the
+evaluator's memory of stall loads, and its least peak over relevant stall events; the LOE bank's
+fault-free ratio at the excited quiet samples and, over the detection window, the peak of the
+smallest ratio among the filters that must fire) and, as detector 'loe_detection', the LOE
+detection level's signed statistic (:data:`mcfdd.analysis.scoring.DETECTION`: the confirmed
+rejection with contrast, excitation floor, gates and confirmation, whose sign is the verdict). The
+search ascends their smooth versions, which the same monitors give with a temperature (a
+log-sum-exp, on the logarithm of a theta statistic, :mod:`mcfdd.analysis.scoring.smooth`: T is
+relative there, 0.05 about 5 %; on the detection statistic in its own units); as T -> 0 they tend
+to the hard ones.
 
-Search space: the ``range`` axes of a campaign's scenario space, mapped from the unit cube as
-:func:`mcfdd.analysis.scenarios.design_table` does (Vcas between its lower bound and the smaller of
-its upper bound and the Mach-limit speed at the altitude, whose closed form keeps the map
-differentiable); the projection is a clip to [0, 1]. Categorical and discrete axes
-are held fixed per start, at the values of its screening point. The scenario's random numbers are
-fixed by its key, so the objective is deterministic. :func:`mcfdd.analysis.scenarios.to_scenario`
-is affine in every continuous column once the categorical ones are fixed, so a point's traced
-scenario is ``S(x0) + J (x - x0)`` with S(x0) and J taken from ``to_scenario`` itself: tables and
-searches share one conversion.
+Design decisions (DESIGN.md section 5):
+
+- The stall detector's tau_f is scored as the campaign scores it (one monitor), and that
+  definition leaves out the evaluator's memory of stall loads (:mod:`mcfdd.analysis.scoring.stall`):
+  a stall that happened is the detector's fault, not fault-free operation, and its residual stays
+  in theta for about 1 / gamma (10 s) after it ends, far beyond the 0.5-s grace. Without that, the
+  search's tau_f on ``configs/worst_case_stall.toml`` was the memory of a 9-s stall (34 deg).
+- Events: a run whose bound does not exist (no relevant stall load for the stall detector's tau_d,
+  a run that need not be detected, a peak hinge-load fraction below ``min_load_fraction``) scores
+  -inf. A start that reaches such a point is replaced by the screening's next best point that has
+  the event (:func:`pool_from`, :class:`mcfdd.analysis.optimise.Restarts`); once the pool is used
+  up, it backtracks to its best point.
+- Time: the onset of a fault and the start of a manoeuvre are continuous axes where the space
+  gives them a range (``fault_onset_s``, ``t_start_s``); the extreme's timing is searched with
+  the rest.
+
+Search space: :mod:`mcfdd.analysis.search_space` (the campaign's continuous axes as a unit cube,
+categorical ones fixed per start, the traced scenario affine in the columns).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from functools import partial
 from typing import NamedTuple
@@ -40,152 +52,10 @@ import numpy as np
 import optax
 
 from mcfdd.analysis import optimise, scenarios, scoring, simulate
+from mcfdd.analysis.search_space import Anchor, Box, SearchSpace, scenario_at, to_columns
 from mcfdd.analysis.simulate import run_keys
 from mcfdd.fdd import system
-from mcfdd.plant import atmosphere, closed_loop, manoeuvres
-
-# --------------------------------------------------------------------------------------------
-# Search space
-
-
-class Box(NamedTuple):
-    """Unit cube to column values: arrays over the d continuous axes and the Mach limit."""
-
-    lo: jnp.ndarray
-    hi: jnp.ndarray
-    vcas: jnp.ndarray  # (d,) true for the vcas_kt axis
-    altitude: jnp.ndarray  # (d,) one-hot of the altitude_m axis (zeros if it is not continuous)
-    max_mach: jnp.ndarray
-
-
-class Anchor(NamedTuple):
-    """One point's fixed part: its categorical values, as the affine map x -> (scenario, onset)."""
-
-    x0: jnp.ndarray  # (d,) column values the map is taken at
-    scenario: closed_loop.Scenario  # at x0
-    jacobian: closed_loop.Scenario  # leaves with a trailing (d,) axis: change per unit of each column
-    onset_s: jnp.ndarray  # fault onset at x0 (inf without a fault)
-    onset_jacobian: jnp.ndarray  # (d,)
-    accept: jnp.ndarray  # (N,) acceptable identifications at x0
-    altitude_m: jnp.ndarray  # altitude if it is not a continuous axis
-    nearest: jnp.ndarray | None = None  # nearest model at x0 (set by :func:`anchors_at`)
-
-
-def to_columns(box: Box, altitude_m, u):
-    """Column values (d,) of a point u in [0, 1]^d, as :func:`scenarios.design_table` maps them.
-
-    ``altitude_m`` is the point's altitude when altitude is not a continuous axis.
-    """
-    span = box.hi - box.lo
-    plain = box.lo + u * span
-    altitude = jnp.where(jnp.any(box.altitude > 0), jnp.sum(box.altitude * plain), altitude_m)
-    vmax = atmosphere.calibrated_airspeed(box.max_mach, altitude) / atmosphere.KT_TO_M_S
-    return jnp.where(box.vcas, box.lo + u * (jnp.minimum(box.hi, vmax) - box.lo), plain)
-
-
-def scenario_at(anchor: Anchor, x):
-    """Traced (Scenario, onset) at column values x (d,): ``S(x0) + J (x - x0)``."""
-    dx = x - anchor.x0
-
-    def leaf(base, jac):
-        if not jnp.issubdtype(base.dtype, jnp.floating):
-            return base
-        return base + jnp.dot(jac, dx.astype(jac.dtype))
-
-    return jax.tree.map(leaf, anchor.scenario, anchor.jacobian), anchor.onset_s + jnp.dot(anchor.onset_jacobian, dx)
-
-
-@dataclasses.dataclass(frozen=True)
-class SearchSpace:
-    """A campaign's scenario space split for the search.
-
-    ``continuous``: the 'range' axes (the unit cube searched); ``categorical``: the other varying
-    axes (choices and discrete values), held fixed per point; ``constants``: const axes.
-    """
-
-    continuous: tuple
-    categorical: tuple
-    constants: dict
-    max_mach: float
-
-    @classmethod
-    def from_axes(cls, axes, max_mach: float) -> SearchSpace:
-        """Split the axes (:class:`mcfdd.config.Axis`) of a scenario space."""
-        return cls(tuple(a for a in axes if a.kind == "range"),
-                   tuple(a for a in axes if a.kind in ("choices", "values")),
-                   {a.name: a.values[0] for a in axes if a.kind == "const"}, max_mach)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(a.name for a in self.continuous)
-
-    @property
-    def dim(self) -> int:
-        return len(self.continuous)
-
-    def box(self, dtype) -> Box:
-        """The :class:`Box` of the continuous axes (column units, e.g. kt, m) in ``dtype``."""
-        f = np.dtype(dtype)
-        return Box(lo=jnp.asarray([a.lo for a in self.continuous], f),
-                   hi=jnp.asarray([a.hi for a in self.continuous], f),
-                   vcas=jnp.asarray([n == "vcas_kt" for n in self.names]),
-                   altitude=jnp.asarray([float(n == "altitude_m") for n in self.names], f),
-                   max_mach=jnp.asarray(self.max_mach, f))
-
-    def categories(self, u_cat) -> dict:
-        """Categorical columns of points drawn as u_cat (P, k) in [0, 1)^k (:func:`scenarios.from_unit`)."""
-        u_cat = np.asarray(u_cat)
-        return {a.name: scenarios.from_unit(a, u_cat[:, j]) for j, a in enumerate(self.categorical)}
-
-    def table(self, categories: dict, x) -> dict:
-        """Scenario-table columns (P rows) of points with categorical values and column values x (P, d).
-
-        Fault sizes are merged per kind into ``fault_size`` as in the campaign design.
-        """
-        x = np.asarray(x, dtype=float).reshape(-1, self.dim)
-        n = x.shape[0]
-        cols = {name: np.full(n, value) for name, value in self.constants.items()}
-        cols.update({k: np.asarray(v) for k, v in categories.items()})
-        cols.update({name: x[:, j] for j, name in enumerate(self.names)})
-        return scenarios.merge_fault_sizes(cols)
-
-    def anchors(self, categories: dict, x0, nu_bank, dtype) -> Anchor:
-        """Anchors (leading axis P) of points with categorical values and column values x0 (P, d)."""
-        x0 = np.asarray(x0, dtype=float).reshape(-1, self.dim)
-        n, d = x0.shape
-        steps = np.concatenate([np.zeros((1, d)), np.eye(d)])  # (d + 1, d)
-        x_all = (x0[:, None, :] + steps[None]).reshape(n * (d + 1), d)
-        cats = {k: np.repeat(np.asarray(v), d + 1) for k, v in categories.items()}
-        cols = self.table(cats, x_all)
-        rows = n * (d + 1)
-        scen = scenarios.to_scenario(cols, np.float64)
-        onset = scenarios.fault_onsets(cols, rows)
-
-        def split(leaf):
-            leaf = np.asarray(leaf).reshape(n, d + 1)
-            base = leaf[:, 0]
-            if not np.issubdtype(leaf.dtype, np.floating):
-                return base, np.zeros((n, d), dtype=dtype)
-            with np.errstate(invalid="ignore"):
-                jac = leaf[:, 1:] - base[:, None]
-            return base.astype(dtype), np.nan_to_num(jac, nan=0.0).astype(dtype)
-
-        base = jax.tree.map(lambda leaf: split(leaf)[0], scen)
-        jac = jax.tree.map(lambda leaf: split(leaf)[1], scen)
-        onset_base, onset_jac = split(onset)
-        first = {k: np.asarray(v)[:: d + 1] for k, v in cols.items()}
-        _, accept = scenarios.true_model(np.asarray(nu_bank), np.asarray(first.get("fault_kind", np.full(n, "none"))),
-                                         np.asarray(first.get("fault_size", np.zeros(n))))
-        altitude = np.asarray(first.get("altitude_m", np.full(n, scenarios.DEFAULTS["altitude_m"])), dtype=dtype)
-        return Anchor(jnp.asarray(x0, dtype), jax.tree.map(jnp.asarray, base), jax.tree.map(jnp.asarray, jac),
-                      jnp.asarray(onset_base), jnp.asarray(onset_jac), jnp.asarray(accept), jnp.asarray(altitude))
-
-    def kinds(self) -> tuple[int, ...]:
-        """Static manoeuvre family codes the space can produce."""
-        axis = next((a for a in self.categorical if a.name == "manoeuvre_kind"), None)
-        names = axis.values if axis else (self.constants.get("manoeuvre_kind", scenarios.DEFAULTS["manoeuvre_kind"]),)
-        return tuple(sorted(manoeuvres.KIND_CODE[k] for k in set(names)))
-
+from mcfdd.plant import closed_loop
 
 # --------------------------------------------------------------------------------------------
 # One point: plant, FDD and the scoring monitors (hard and smooth) in one scan
@@ -217,9 +87,24 @@ def evaluate(model, fdd_params, settings, box, anchors, u, keys, temperature, n_
     return jax.vmap(one)(anchors, u, keys)
 
 
-def smooth_column(detector: str, bound: str) -> str:
-    """The column of a bound's smooth logarithm."""
-    return f"smooth_log_{scoring.BOUNDS[(detector, bound)]}"
+class Statistic(NamedTuple):
+    """A bound read from the monitors' columns: ``sign * columns[hard]`` (``smooth``: its smooth version,
+    a logarithm where ``log``)."""
+
+    hard: str
+    smooth: str
+    sign: float
+    log: bool
+
+
+def statistic(detector: str, bound: str) -> Statistic:
+    """The statistic of a bound: the detectors' theta statistics (:data:`scoring.BOUNDS`, smoothed on their
+    logarithm) or, for 'loe_detection', the LOE detection level's signed statistic (:data:`scoring.DETECTION`)."""
+    if detector == "loe_detection":
+        name, sign = scoring.DETECTION[bound]
+        return Statistic(name, f"{name}_smooth", sign, False)
+    name = scoring.BOUNDS[(detector, bound)]
+    return Statistic(name, f"smooth_log_{name}", 1.0, True)
 
 
 def sense(bound: str) -> float:
@@ -227,19 +112,28 @@ def sense(bound: str) -> float:
     return 1.0 if bound == "free" else -1.0
 
 
+def admissible(columns: dict, min_load_fraction):
+    """Runs whose bound counts: those reaching a peak hinge-load fraction of ``min_load_fraction`` (0: all)."""
+    return (min_load_fraction <= 0.0) | (columns["peak_load_fraction"] >= min_load_fraction)
+
+
 @partial(jax.jit, static_argnames=STATIC + ("detector", "bound"))
 def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperature, n_steps: int, dt_s: float,
-                   substeps: int, kinds: tuple[int, ...], detector: str, bound: str):
-    """Score (smooth bound in log units, sign flipped for an infimum) and its gradient in u, per point.
+                   substeps: int, kinds: tuple[int, ...], detector: str, bound: str, min_load_fraction=0.0):
+    """Score (the smooth bound, in log units for theta statistics, sign flipped for an infimum; -inf where
+    the run does not count) and its gradient in u, per point.
 
     Returns (score (P,), (columns, x), gradient (P, d)).
     """
+    stat = statistic(detector, bound)
+
     def one(anchor, u, key):
         def score(u):
             columns, x = run_point(model, fdd_params, settings, box, anchor, u, key, temperature, n_steps, dt_s,
                                    substeps, kinds)
-            value = sense(bound) * columns[smooth_column(detector, bound)]
-            return jnp.where(jnp.isfinite(value), value, -jnp.inf), (columns, x)
+            value = sense(bound) * stat.sign * columns[stat.smooth]
+            keep = jnp.isfinite(value) & admissible(columns, min_load_fraction)
+            return jnp.where(keep, value, -jnp.inf), (columns, x)
 
         (value, aux), grad = jax.value_and_grad(score, has_aux=True)(u)
         return value, aux, jnp.where(jnp.isfinite(grad), grad, 0.0)
@@ -247,16 +141,18 @@ def score_and_grad(model, fdd_params, settings, box, anchors, u, keys, temperatu
     return jax.vmap(one)(anchors, u, keys)
 
 
-def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None) -> optimise.Trace:
+def ascend(score_and_grad_fn, u0, iterations: int, learning_rate: float, callback=None,
+           restarts: optimise.Restarts | None = None) -> optimise.Trace:
     """Multi-start projected Adam ascent on [0, 1]^d with backtracking (:func:`mcfdd.analysis.optimise.backtracking`).
 
     ``score_and_grad_fn(u)`` returns (score (S,), aux, gradient (S, d)) for the S starts u (S, d);
-    a score of -inf marks an infeasible point. ``callback(i, score, aux)`` sees every evaluation.
-    Evaluations: S (iterations + 1).
+    a score of -inf marks an infeasible point: the start backtracks or, with ``restarts``, moves to
+    the next point of its pool. ``callback(i, score, aux)`` sees every evaluation. Evaluations: S
+    (iterations + 1).
     """
     return optimise.run(score_and_grad_fn, jnp.asarray(u0), optimise.backtracking(learning_rate), iterations,
                         maximize=True, project=lambda u: optax.projections.projection_box(u, 0.0, 1.0),
-                        callback=callback)
+                        callback=callback, restarts=restarts)
 
 
 def unit_points(space: SearchSpace, design: str, n: int, seed: int):
@@ -286,7 +182,9 @@ def extreme(values, bound: str):
 
 
 class Problem(NamedTuple):
-    """A bound to search: simulation, FDD, scoring and space. ``temperature`` in log units."""
+    """A bound to search: simulation, FDD, scoring and space. ``temperature`` in log units (theta
+    statistics) or in the statistic's units ('loe_detection'); runs below ``min_load_fraction`` of peak
+    hinge load do not count."""
 
     model: closed_loop.PlantModel
     fdd_params: system.FddParams
@@ -300,6 +198,7 @@ class Problem(NamedTuple):
     dt_s: float
     substeps: int
     dtype: type
+    min_load_fraction: float = 0.0
 
     def static(self) -> dict:
         return {"n_steps": self.n_steps, "dt_s": self.dt_s, "substeps": self.substeps, "kinds": self.space.kinds()}
@@ -307,7 +206,8 @@ class Problem(NamedTuple):
 
 class Points(NamedTuple):
     """Evaluated points: u (P, d), categorical columns, column values x (P, d), the smooth and hard
-    bound (P,) in the statistic's units (rod m for the stall detector) and the monitors' columns."""
+    bound (P,) in the statistic's units (rod m for the stall detector; nan where the run does not
+    count), the monitors' columns and, for a gradient search, the pool index each point started from."""
 
     u: np.ndarray
     categories: dict
@@ -315,6 +215,7 @@ class Points(NamedTuple):
     soft: np.ndarray
     hard: np.ndarray
     outcomes: dict
+    start: np.ndarray | None = None
 
 
 def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
@@ -333,9 +234,12 @@ def anchors_at(problem: Problem, box: Box, u, categories: dict) -> Anchor:
 
 def _points(problem: Problem, u, categories, columns, x) -> Points:
     columns = {k: np.asarray(v) for k, v in columns.items()}
+    stat = statistic(problem.detector, problem.bound)
+    keep = np.asarray(admissible(columns, problem.min_load_fraction))
+    smooth = np.asarray(columns[stat.smooth], dtype=float)
     return Points(np.asarray(u), categories, np.asarray(x),
-                  np.exp(np.asarray(columns[smooth_column(problem.detector, problem.bound)], dtype=float)),
-                  np.asarray(columns[scoring.BOUNDS[(problem.detector, problem.bound)]], dtype=float), columns)
+                  np.where(keep, np.exp(smooth) if stat.log else stat.sign * smooth, np.nan),
+                  np.where(keep, stat.sign * np.asarray(columns[stat.hard], dtype=float), np.nan), columns)
 
 
 def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> Points:
@@ -356,22 +260,41 @@ def evaluate_points(problem: Problem, u, categories: dict, keys, batch: int) -> 
     return _points(problem, u, categories, columns, x)
 
 
+class Pool(NamedTuple):
+    """Points a gradient search starts from, in order: u (P, d), categorical columns, keys and their
+    ``index`` (P,) (screening rows). The first S are the starts, the rest replace a start that loses the
+    event (:class:`mcfdd.analysis.optimise.Restarts`)."""
+
+    u: np.ndarray
+    categories: dict
+    keys: object
+    index: np.ndarray
+
+
 def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
-                    callback=None) -> list[Points]:
+                    callback=None, pool: Pool | None = None) -> list[Points]:
     """Projected gradient search (:func:`ascend`) from the starts u0 (S, d) with their categorical
-    columns and keys. Returns the evaluated points of every iteration (iterations + 1 of them);
-    ``callback(i, points)`` sees each."""
+    columns and keys or, given a ``pool``, from its first S points (u0, categories and keys are then its
+    first S), an infeasible start moving to the pool's next point. Returns the evaluated points of every
+    iteration (iterations + 1 of them; ``start``: the pool index of each); ``callback(i, points)`` sees each."""
     box = problem.space.box(problem.dtype)
+    starts = np.shape(u0)[0]
+    if pool is None:
+        pool = Pool(np.asarray(u0), categories, keys, np.arange(starts))
+    restarts = optimise.Restarts(pool.u, starts)
 
     def score_and_grad_fn(u):
-        anchors = anchors_at(problem, box, np.asarray(u), categories)
+        slots = restarts.slots.copy()
+        cats = {k: np.asarray(v)[slots] for k, v in pool.categories.items()}
+        anchors = anchors_at(problem, box, np.asarray(u), cats)
         score, (columns, x), grad = score_and_grad(
-            problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype), keys,
-            problem.temperature, detector=problem.detector, bound=problem.bound, **problem.static())
-        return score, _points(problem, u, categories, columns, x), grad
+            problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype),
+            pool.keys[slots], problem.temperature, detector=problem.detector, bound=problem.bound,
+            min_load_fraction=problem.min_load_fraction, **problem.static())
+        return score, _points(problem, u, cats, columns, x)._replace(start=pool.index[slots]), grad
 
     report = None if callback is None else (lambda i, score, points: callback(i, points))
-    return ascend(score_and_grad_fn, u0, iterations, learning_rate, report).aux
+    return ascend(score_and_grad_fn, pool.u[:starts], iterations, learning_rate, report, restarts).aux
 
 
 def sample(problem: Problem, design: str, n: int, seed: int, batch: int, first: int = 0) -> Points:
@@ -387,8 +310,21 @@ def budget(screening: int, starts: int, iterations: int) -> int:
     return screening + starts * (iterations + 1)
 
 
+def starts_of(pool: Pool, n: int):
+    """The first n points of a pool as starts: (u (n, d), categorical columns, keys)."""
+    return pool.u[:n], {k: np.asarray(v)[:n] for k, v in pool.categories.items()}, pool.keys[:n]
+
+
 def starts_from(screened: Points, n: int, bound: str, seed: int):
     """The n worst screened points as starts: (indices, u (n, d), categorical columns, keys)."""
-    idx = best_points(screened.hard, n, bound)
-    return idx, screened.u[idx], {k: np.asarray(v)[idx] for k, v in screened.categories.items()}, \
-        run_keys(seed, idx)
+    pool = pool_from(screened, n, bound, seed)
+    return (pool.index[:n], *starts_of(pool, n))
+
+
+def pool_from(screened: Points, starts: int, bound: str, seed: int) -> Pool:
+    """The screened points worst first: the ``starts`` worst, then every other one whose bound counts
+    (finite), in order, to replace a start that loses the event."""
+    order = best_points(screened.hard, len(screened.hard), bound)
+    idx = np.concatenate([order[:starts], [i for i in order[starts:] if np.isfinite(screened.hard[i])]]).astype(int)
+    return Pool(screened.u[idx], {k: np.asarray(v)[idx] for k, v in screened.categories.items()},
+                run_keys(seed, idx), idx)

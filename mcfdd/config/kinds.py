@@ -208,7 +208,9 @@ class CampaignConfig(Scored):
 class SearchSettings(Section):
     """Multi-start projected gradient search of one detection bound, eqs. (26)-(27)."""
 
-    detector: choice(("stall", "loe")) = spec("stall")
+    detector: choice(("stall", "loe", "loe_detection")) = spec(
+        "stall", doc="stall: the stall detector's theta; loe: the LOE bank's ratios theta_i / ||u|| "
+        "(identification); loe_detection: the LOE detection level's signed statistic (its sign is the verdict)")
     bound: choice(("free", "detect")) = spec(
         "free", doc="free: tau_f of eq. (26), maximised over fault-free runs; detect: tau_d of eq. (27), minimised")
     screening: int = spec(64, lo=1, hi=100_000, doc="Sobol points screened; the worst ones start the gradient search")
@@ -216,7 +218,10 @@ class SearchSettings(Section):
     iterations: int = spec(20, lo=1, hi=10_000, doc="gradient steps per start")
     learning_rate: float = spec(0.05, lo=0.0, lo_open=True, hi=1.0, doc="Adam step in the unit cube")
     temperature: float = spec(0.05, lo=0.0, lo_open=True, hi=10.0,
-                              doc="smooth maximum over time, in log units of the statistic (0.05: about 5 %)")
+                              doc="smooth maximum over time, in log units of the statistic (0.05: about 5 %); "
+                                  "for loe_detection in the statistic's units (theta_0 / ||u||)")
+    min_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="only runs whose peak hinge-load fraction "
+                                    "(peak_load_fraction) reaches this count (detect: the faults an FDD must see)")
 
 
 class WorstCaseConfig(Scored):
@@ -236,7 +241,7 @@ class WorstCaseConfig(Scored):
         if s.bound == "free" and set(kinds) != {"none"}:
             raise Invalid("space.fault_kind", f"{list(kinds)}; the false-alarm bound (search.bound = 'free') is "
                                               f"taken over fault-free runs, so fault_kind must be \"none\"")
-        if (s.detector, s.bound) == ("loe", "detect") and not set(kinds) <= set(columns.PARAMETRIC):
+        if s.detector != "stall" and s.bound == "detect" and not set(kinds) <= set(columns.PARAMETRIC):
             raise Invalid("space.fault_kind", f"{list(kinds)}; the LOE detection bound needs parametric faults, "
                                               f"one of {', '.join(columns.PARAMETRIC)}")
         self.check_space(CampaignSettings(duration_s=self.simulation.duration_s), "search")

@@ -73,6 +73,9 @@ RunConfig = run_section(
     last=[("seed", (int | None, spec(None, lo=0, doc="turbulence and sensor noise of this run; unset, every run of "
                                                      "the config draws the same ones (from simulation.seed), so runs "
                                                      "are paired"))),
+          ("index", (int, spec(0, lo=0, hi=2**32 - 1, doc="which of the seed's runs: turbulence and sensor noise "
+                                                         "of row `index` of a campaign or worst-case search of that "
+                                                         "seed (its run key fold_in(key(seed), index))"))),
           ("fault", (FaultConfig, spec(FaultConfig()))), ("manoeuvre", (ManoeuvreConfig, spec(ManoeuvreConfig())))])
 
 

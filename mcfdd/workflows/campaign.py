@@ -183,7 +183,7 @@ def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
     onset = scenarios.fault_onsets(cols, size)
     truth = scoring.Truth(onset.astype(setup.dtype), accept, nearest)
-    keys = simulate.run_keys(seed, padded if setup.plan.keys is None else setup.plan.keys[padded])
+    keys = simulate.run_keys(seed, setup.plan.key_index(padded))
     return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, keys
 
 

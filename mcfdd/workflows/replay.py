@@ -193,12 +193,12 @@ def replay_rows(cfg: config.CampaignConfig, table: pd.DataFrame, ids, plan: buil
     with precision(c.precision):
         setup = campaign_wf.campaign_setup(cfg, plan)
         size = campaign_wf.chunk_size(len(ids), setup.n)
-        keys = campaign_wf.chunk_inputs(setup, c.seed, ids, len(ids))[2]
         design = build.design_chunk(cfg, setup.plan, ids)
     note(f"replay: {len(ids)} scenario(s) of {c.duration_s} s ({c.n_steps} steps, {c.precision}) through the "
          f"campaign's chunk program (padded to {size}) and with time histories", progress)
     outcomes = pd.DataFrame(campaign_wf.run_chunk(cfg, ids, size, setup.plan))
-    frame, names = histories(c, cfg.plant, cfg.fdd, design, [run_name(i) for i in ids], progress, keys=keys)
+    frame, names = histories(c, cfg.plant, cfg.fdd, design, [run_name(i) for i in ids], progress, [c.seed] * len(ids),
+                             setup.plan.key_index(ids))
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names), scenarios=[int(i) for i in ids],
                          campaign="" if source is None else str(source))
     return ReplayResult(ids.tolist(), rows, outcomes, Histories(frame, names, meta, c.dt_s), source,

@@ -31,17 +31,17 @@ def run_histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, f
                   progress: bool = True):
     """:func:`histories` of a config's ``[[runs]]``, each with its own ``seed`` where it sets one."""
     return histories(sim, plant_cfg, fdd_cfg, runs_table(runs), [r.name for r in runs], progress,
-                     [r.seed for r in runs])
+                     [r.seed for r in runs], [r.index for r in runs])
 
 
 def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_cfg: config.FddConfig, table: dict,
-              run_names, progress: bool = True, seeds=None, keys=None):
+              run_names, progress: bool = True, seeds=None, indices=None):
     """Simulate the runs of a scenario table with plant and FDD in one batch.
 
-    Runs are paired: each draws its turbulence and sensor noise from ``run_keys(seed, [0])`` with
-    its entry of ``seeds`` (None, or no ``seeds`` at all, for ``sim.seed``), so runs of one seed
-    see the same random numbers and differ only by their parameters. ``keys`` (one JAX key per
-    run, e.g. a campaign's scenario keys) replaces the seeds' keys.
+    Runs are paired: each draws its turbulence and sensor noise from ``run_keys(seed, [index])``
+    with its entry of ``seeds`` (None, or no ``seeds`` at all, for ``sim.seed``) and of ``indices``
+    (none: 0), so runs of one seed and index see the same random numbers and differ only by their
+    parameters, and a run with a campaign's seed and row index replays that row.
 
     Returns (tidy DataFrame of time histories, LPV model names).
     """
@@ -52,10 +52,8 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
         fdd_params = build.fdd_params(fdd_cfg, bank, model.actuator.r_arm_m)
         scenarios = to_scenario(table, dtype)
         kinds = batch.kinds_in(scenarios.manoeuvre.kind)
-        if keys is None:
-            seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
-            unique, inverse = np.unique(seeds, return_inverse=True)
-            keys = jnp.concatenate([run_keys(int(s), [0]) for s in unique])[inverse]
+        seeds = [sim.seed if s is None else s for s in (seeds or [None] * len(run_names))]
+        keys = jnp.concatenate([run_keys(int(s), [int(i)]) for s, i in zip(seeds, indices or [0] * len(run_names))])
         _check_memory(len(run_names), sim, jax.eval_shape(lambda s, k: fdd_batch(
             model, fdd_params, s, k, 1, sim.dt_s, sim.substeps, kinds), scenarios, keys))
         note(f"simulating {len(run_names)} run(s) of {sim.duration_s} s ({sim.n_steps} steps, {sim.precision})",

@@ -14,14 +14,25 @@ from mcfdd.analysis import build, worst_case as wc
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure
 
+# the bound's column in the points table and its units, per detector
+VALUES = {"stall": "bound_deg", "loe": "bound_ratio", "loe_detection": "bound_statistic"}
+UNITS = {"stall": "deg (theta of the stall detector, its memory of stall loads left out)", "loe": "theta / ||u||",
+         "loe_detection": "theta_0 / ||u|| (the LOE detection level's signed statistic: positive where the FDD "
+                          "detects, so tau_f > 0 is a false alarm and tau_d < 0 a missed detection)"}
+REPLAY = "replay.toml"
 
-def _points_frame(space, points, scale: float, value: str, **labels):
-    """One row per evaluated point: labels, scenario columns, hard and smooth bound (scaled)."""
+
+def _points_frame(space, points, scale: float, value: str, seed: int, run_index, **labels):
+    """One row per evaluated point: labels, scenario columns, hard and smooth bound (scaled), the run key
+    (``seed``, ``run_index``) and the verdict columns the report shows."""
     table = space.table(points.categories, points.x)
     n = len(points.hard)
+    out = points.outcomes
     return pd.DataFrame({**{k: np.broadcast_to(np.asarray(v), n) for k, v in labels.items()}, **table,
                          value: points.hard * scale, f"{value}_smooth": points.soft * scale,
-                         "stall_events": points.outcomes["stall_events"], "status": points.outcomes["status"]})
+                         "stall_events": out["stall_events"], "peak_load_fraction": out["peak_load_fraction"],
+                         "status": out["status"], "seed": np.full(n, seed),
+                         "run_index": np.broadcast_to(np.asarray(run_index), n)})
 
 
 class WorstCaseResult:
@@ -29,19 +40,35 @@ class WorstCaseResult:
 
     Attributes:
         points: one row per simulation: ``method`` (screening, gradient, monte_carlo,
-            monte_carlo_extra), ``start``, ``iteration``, ``index``, the scenario parameters, the
-            bound ``value`` (deg for the stall detector, theta/||u|| for the LOE bank), its smooth
-            form, stall events and status.
+            monte_carlo_extra), ``start`` (the screening row a gradient start began from),
+            ``iteration``, ``index``, the scenario parameters, the bound ``value`` (:data:`VALUES`;
+            units :data:`UNITS`), its smooth form, stall events, peak load fraction, status and the
+            run key (``seed``, ``run_index``: row ``run_index`` of a campaign of that seed draws the
+            same random numbers).
         summary: per method the number of simulations, run time (s) and worst value.
-        value: the name of the bound column, 'bound_deg' or 'bound_ratio'.
+        value: the name of the bound column (:data:`VALUES`).
         bound: 'free' (tau_f, largest) or 'detect' (tau_d, smallest).
         notes: what was run, for the report.
         meta: provenance.
     """
 
-    def __init__(self, points, summary, value, bound, label, notes, meta):
+    def __init__(self, points, summary, value, bound, label, notes, meta, replay_base=None):
         self.points, self.summary, self.value, self.bound, self.label, self.notes, self.meta = (
             points, summary, value, bound, label, notes, meta)
+        self.replay_base = replay_base
+
+    def replay(self) -> dict:
+        """A 'simulate' config (dict) whose ``[[runs]]`` are the witness of each method of the summary
+        (``mcfdd simulate`` gives their time histories): the search's simulation, plant and FDD, and per run
+        the witness's scenario and run key."""
+        runs, seen = [], set()
+        for _, r in self.summary.iterrows():
+            if r["row"] < 0 or r["row"] in seen:
+                continue
+            seen.add(r["row"])
+            row = self.points.loc[r["row"]]
+            runs.append(build.run_entry(row.to_dict(), f"{row['method']}-{r['row']}", row["seed"], row["run_index"]))
+        return {**self.replay_base, "runs": runs}
 
     def plot(self, name: str = "history"):
         """'history': the bound per simulation and method, a matplotlib Figure."""
@@ -52,16 +79,22 @@ class WorstCaseResult:
         return plots.search_history(self.points, self.value, f"{self.value}_smooth", self.label, self.bound)
 
     def save(self, out, title: str = "Worst case") -> list[Path]:
-        """Write ``worst_case.parquet``, ``summary.parquet``, ``report.md`` (headed ``title``), ``history.png``."""
+        """Write ``worst_case.parquet``, ``summary.parquet``, ``report.md`` (headed ``title``), ``history.png``
+        and ``replay.toml`` (:meth:`replay`)."""
         out = Path(out)
         parameters = [c for c in self.points.columns if c not in (self.value, f"{self.value}_smooth", "method",
                                                                   "start", "iteration", "index", "status")]
+        replay = self.replay()
+        notes = [*self.notes, f"Replay: `mcfdd simulate {out / REPLAY}` gives the time histories of each method's "
+                              f"witness (runs {', '.join(r['name'] for r in replay['runs'])}: the method and the row "
+                              f"of worst_case.parquet; each with the witness's scenario and run key)."]
         return [io.write_table(self.points, out / "worst_case.parquet", self.meta),
                 io.write_table(self.summary, out / "summary.parquet", self.meta),
                 io.write_text(out / "report.md", report.worst_case_markdown(title, self.summary, self.points,
                                                                             self.value, self.bound, parameters,
-                                                                            self.notes, self.meta)),
-                save_figure(self.plot(), out / "history.png")]
+                                                                            notes, self.meta)),
+                save_figure(self.plot(), out / "history.png"),
+                io.write_text(out / REPLAY, config.to_toml(replay))]
 
 
 def worst_case(cfg, progress: bool = True) -> WorstCaseResult:
@@ -98,21 +131,23 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     space = build.search_space(cfg)
     problem = wc.Problem(model, build.fdd_params(cfg.fdd, bank, r_arm), build.settings(cfg.evaluation, r_arm), space,
                          np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
-                         sim.substeps, dtype)
-    scale, value = (180.0 / math.pi / r_arm, "bound_deg") if s.detector == "stall" else (1.0, "bound_ratio")
+                         sim.substeps, dtype, s.min_load_fraction)
+    scale, value = 180.0 / math.pi / r_arm if s.detector == "stall" else 1.0, VALUES[s.detector]
     budget = wc.budget(s.screening, s.starts, s.iterations)
     what = f"{'tau_f (26), largest' if s.bound == 'free' else 'tau_d (27), smallest'} {s.detector} bound"
+    if s.min_load_fraction > 0:
+        what += f" over runs reaching a peak hinge-load fraction of {s.min_load_fraction}"
     note(f"worst-case search for {what}: {space.dim} continuous axes, {len(space.categorical)} categorical; "
          f"{sim.duration_s} s runs ({sim.n_steps} steps, {sim.precision}); budget {budget} simulations", progress)
     times, frames = {}, []
     start = time.perf_counter()
     screened = wc.sample(problem, "sobol", s.screening, sim.seed, s.screening)
     times["screening"] = time.perf_counter() - start
-    frames.append(_points_frame(space, screened, scale, value, method="screening", start=-1, iteration=-1,
-                                index=np.arange(s.screening)))
+    frames.append(_points_frame(space, screened, scale, value, sim.seed, np.arange(s.screening), method="screening",
+                                start=-1, iteration=-1, index=np.arange(s.screening)))
     note(f"  screening: {s.screening} Sobol points in {times['screening']:.1f} s (compilation included), worst "
          f"{wc.extreme(screened.hard * scale, s.bound)[1]:.5g}", progress)
-    idx, u0, cats, keys = wc.starts_from(screened, s.starts, s.bound, sim.seed)
+    pool = wc.pool_from(screened, s.starts, s.bound, sim.seed)
     stamps = [time.perf_counter()]
     with bar(s.iterations + 1, "gradient evaluations", progress) as shown:
         def callback(i, points):
@@ -120,24 +155,28 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
             shown.set_postfix_str(" ".join(f"{v:.4g}" for v in points.hard * scale), refresh=False)
             shown.update(1)
 
-        iterations = wc.gradient_search(problem, u0, cats, keys, s.iterations, s.learning_rate, callback)
+        iterations = wc.gradient_search(problem, *wc.starts_of(pool, s.starts), s.iterations, s.learning_rate,
+                                        callback, pool)
     times["gradient"] = stamps[-1] - stamps[0]
     steps = np.diff(stamps)
     run_time = float(np.mean(steps[1:]) * len(steps)) if len(steps) > 1 else times["gradient"]
     for i, points in enumerate(iterations):
-        frames.append(_points_frame(space, points, scale, value, method="gradient", start=idx, iteration=i,
-                                    index=np.arange(s.starts)))
+        frames.append(_points_frame(space, points, scale, value, sim.seed, points.start, method="gradient",
+                                    start=points.start, iteration=i, index=np.arange(s.starts)))
+    used = len(np.unique(np.concatenate([p.start for p in iterations])))
+    restarted = used - s.starts
     start = time.perf_counter()
     mc = wc.sample(problem, "random", budget, sim.seed + 1, s.screening)
     times["monte_carlo"] = time.perf_counter() - start
-    frames.append(_points_frame(space, mc, scale, value, method="monte_carlo", start=-1, iteration=-1,
-                                index=np.arange(budget)))
+    frames.append(_points_frame(space, mc, scale, value, sim.seed + 1, np.arange(budget), method="monte_carlo",
+                                start=-1, iteration=-1, index=np.arange(budget)))
     n_time = int(min(max(budget, round(budget * run_time / max(times["monte_carlo"], 1e-9))), 50 * budget))
     if n_time > budget:
         start = time.perf_counter()
         extra = wc.sample(problem, "random", n_time, sim.seed + 1, s.screening, first=budget)
         times["monte_carlo_extra"] = time.perf_counter() - start
-        frames.append(_points_frame(space, extra, scale, value, method="monte_carlo_extra", start=-1, iteration=-1,
+        frames.append(_points_frame(space, extra, scale, value, sim.seed + 1, np.arange(budget, n_time),
+                                    method="monte_carlo_extra", start=-1, iteration=-1,
                                     index=np.arange(budget, n_time)))
     note(f"  gradient search {times['gradient']:.1f} s ({run_time:.1f} s without compilation), Monte Carlo "
          f"{budget} runs {times['monte_carlo']:.1f} s, {n_time} runs (equal run time) "
@@ -145,13 +184,19 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     df = pd.concat(frames, ignore_index=True)
     meta = io.provenance(config.to_json(cfg), sim.seed, models=list(names))
     summ = report.search_summary(df, value, s.bound, times)
+    feasible = int(np.isfinite(screened.hard).sum())
     notes = [f"Worst case of the {what} over the config's scenario space: {s.screening} Sobol points "
              f"screened, the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
-             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in log "
-             f"units), against plain Monte Carlo (random design) with the same number of simulations ({budget}) and "
-             f"with as many as run in the gradient search's time without compilation ({n_time}). A gradient "
+             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in "
+             f"{'the statistic' if s.detector == 'loe_detection' else 'log'} units), against plain Monte Carlo "
+             f"(random design) with the same number of simulations ({budget}) and "
+             f"with as many as run in the gradient search's time without compilation ({n_time}). A start whose "
+             f"run loses the event (no bound: {feasible} of {s.screening} screened runs have one) is replaced by the "
+             f"next best screened run that has it ({restarted} replacements). A gradient "
              f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
              f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
-             f"Values in {'deg (theta of the stall detector)' if s.detector == 'stall' else 'theta / ||u||'}."]
+             f"Values in {UNITS[s.detector]}.",
+             report.search_verdict(summ, value, s.bound, restarted, len(pool.index) - used)]
     label = f"{'tau_f' if s.bound == 'free' else 'tau_d'} candidates, {s.detector} detector ({value})"
-    return WorstCaseResult(df, summ, value, s.bound, label, notes, meta)
+    base = {"simulation": config.to_dict(sim), "plant": config.to_dict(cfg.plant), "fdd": config.to_dict(cfg.fdd)}
+    return WorstCaseResult(df, summ, value, s.bound, label, notes, meta, base)

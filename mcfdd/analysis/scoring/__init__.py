@@ -37,8 +37,14 @@ from mcfdd.plant import atmosphere
 BOUNDS = {("stall", "free"): "stall_theta_max_free", ("stall", "detect"): "stall_theta_peak_min",
           ("loe", "free"): "loe_ratio0_max_pre", ("loe", "detect"): "loe_others_min_peak"}
 
-__all__ = ["BOUNDS", "Monitor", "Sample", "Settings", "Status", "Truth", "Windows", "finalize", "loe", "monitors",
-           "named_chain", "observer", "smooth", "stall", "table", "truth_monitors"]
+# the LOE detection level's bounds (DESIGN.md 5): the FDD's signed statistic of the confirmed rejection
+# (theta_0 / ||u|| units, positive where the FDD detects) as (column, sign): its largest value at the quiet
+# samples (tau_f; a false alarm where positive) and its largest over the detection window of a run that
+# must be detected (tau_d is the least of these; a miss where negative)
+DETECTION = {"free": ("false_alarm_margin", 1.0), "detect": ("missed_margin", -1.0)}
+
+__all__ = ["BOUNDS", "DETECTION", "Monitor", "Sample", "Settings", "Status", "Truth", "Windows", "finalize", "loe",
+           "monitors", "named_chain", "observer", "smooth", "stall", "table", "truth_monitors"]
 
 
 def monitors(settings: Settings, truth: Truth, fdd_params, temperature=None) -> Monitor:
@@ -55,7 +61,7 @@ def monitors(settings: Settings, truth: Truth, fdd_params, temperature=None) -> 
         ("stall_events", stall.events(settings, truth, tau, temperature)),
         *((f"false_identification_{m}", stall.false_identification(settings, truth, m, temperature))
           for m in stall.METHODS),
-        ("stall_detector", stall.detector(settings, truth, tau, temperature)),
+        ("stall_detector", stall.detector(settings, truth, tau, fdd_params.stall.evaluator, temperature)),
         ("loe_ratios", loe.ratios(settings, truth, temperature)),
         ("peaks", truth_monitors.peaks(settings, truth)),
         ("jams", stall.jams(settings, truth)),

@@ -4,9 +4,22 @@ Stall events are the plant's own truth (the windows' ``opening``/``closing``, DE
 5); an event is relevant if it lasts ``stall_min_duration_s`` and its tracking error reaches
 ``stall_min_error_m``.
 
-- :func:`detector`: the stall detector's largest theta at the quiet samples (its false-alarm bound,
-  eq. 26) and ``stall_false_detection``: it reached tau there; the margin is theta over tau,
-  relative, ``(max theta - tau) / tau`` (at a tie the smallest positive number).
+- :func:`detector`: the stall detector's largest theta at the quiet samples, less the evaluator's
+  memory of stall loads (its false-alarm bound, eq. 26), and ``stall_false_detection``: that
+  reached tau there; the margin is theta over tau, relative, ``(max theta - tau) / tau`` (at a tie
+  the smallest positive number). The memory of stall loads: the Narendra evaluator (14) is linear
+  in |r|, so theta splits exactly into the part driven by the residual of the samples outside
+  stall loads and their grace time and the part driven by the residual within them, which decays
+  at gamma (the paper's 0.1 1/s: a 10-s memory) after the stall ends. That second part is the
+  detection of a stall that happened (eq. 27's side), not a false alarm: a fault-free run in the
+  sense of eq. (26) has no stall load, and after a transient one the detector is back in
+  fault-free operation only for what the stall no longer drives. So the exclusion after a stall
+  lasts exactly until the evaluator has forgotten it, for that part alone; a new residual after
+  the grace time counts in full. (With the grace time alone, the stall detector's tau_f on
+  ``configs/worst_case_stall.toml`` was the memory of a 9-s stall half a second after it: 34 deg
+  against tau = 1 deg.) The detector's own iota = 1 carried by that memory is the stall's
+  indication held on; identification (eta, :func:`false_identification`) is scored on the FDD's
+  own eta, with the grace time.
 - :func:`events`: relevant events counted, those identified by each method (eta = 1 while the
   event lasts) and the worst latency (first eta = 1 minus onset) of each; per relevant event the
   peak theta within ``stall_window_s`` of the onset, its smallest value over the run (the
@@ -42,27 +55,36 @@ import jax.numpy as jnp
 
 from mcfdd.analysis.scoring import smooth
 from mcfdd.analysis.scoring.core import Monitor, Sample, Settings, Truth, Windows, finite_or_nan, first, signed, void
-from mcfdd.fdd import decision
+from mcfdd.fdd import decision, evaluator
 
 METHODS = ("signal", "model")
 
 
 class Detector(NamedTuple):
     theta_max_free: jnp.ndarray
+    memory: jnp.ndarray  # the evaluator's xi driven by the residual within stall loads and their grace
+    t_last: jnp.ndarray  # time of the last sample (s)
     soft: smooth.SoftMax | None
 
 
-def detector(s: Settings, truth: Truth, tau, temperature=None) -> Monitor:
-    """The stall detector at the quiet samples; ``tau`` its threshold (rod units)."""
+def detector(s: Settings, truth: Truth, tau, evaluation: evaluator.NarendraParams, temperature=None) -> Monitor:
+    """The stall detector at the quiet samples, less its memory of stall loads; ``tau`` its threshold (rod
+    units), ``evaluation`` its evaluator (14)."""
     def init(dtype):
-        return Detector(jnp.asarray(-jnp.inf, dtype), None if temperature is None else smooth.softmax_init(dtype))
+        return Detector(jnp.asarray(-jnp.inf, dtype), jnp.zeros((), dtype), jnp.zeros((), dtype),
+                        None if temperature is None else smooth.softmax_init(dtype))
 
     def update(state: Detector, w: Windows, sample: Sample) -> Detector:
-        theta = sample.fdd.theta_stall
+        # the same step as the FDD's evaluator, on the residual of the excluded samples only; at a clear
+        # sample its theta is the memory before the sample (its input is 0 there)
+        memory, remembered = evaluator.step(evaluation, state.memory, jnp.where(w.clear, 0.0, sample.fdd.r_stall),
+                                            w.t - state.t_last)
+        theta = sample.fdd.theta_stall - remembered
         soft = state.soft
         if soft is not None:
             soft = smooth.softmax_step(temperature, soft, smooth.log_stat(theta), w.quiet)
-        return Detector(jnp.where(w.quiet, jnp.maximum(state.theta_max_free, theta), state.theta_max_free), soft)
+        return Detector(jnp.where(w.quiet, jnp.maximum(state.theta_max_free, theta), state.theta_max_free), memory,
+                        w.t, soft)
 
     def finalize(state: Detector, end: Windows) -> dict:
         fired = end.ok & (state.theta_max_free >= tau)
