@@ -198,7 +198,7 @@ def replay_rows(cfg: config.CampaignConfig, table: pd.DataFrame, ids, plan: buil
          f"campaign's chunk program (padded to {size}) and with time histories", progress)
     outcomes = pd.DataFrame(campaign_wf.run_chunk(cfg, ids, size, setup.plan))
     frame, names = histories(c, cfg.plant, cfg.fdd, design, [run_name(i) for i in ids], progress, [c.seed] * len(ids),
-                             setup.plan.key_index(ids))
+                             np.asarray(setup.plan.key_index(ids)).tolist())
     meta = io.provenance(config.to_json(cfg), c.seed, models=list(names), scenarios=[int(i) for i in ids],
                          campaign="" if source is None else str(source))
     return ReplayResult(ids.tolist(), rows, outcomes, Histories(frame, names, meta, c.dt_s), source,
