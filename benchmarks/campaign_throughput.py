@@ -425,7 +425,7 @@ def peer_functions(p: Problem, n_steps: int):
     kinds, dt_s, substeps = p.setup.kinds, p.c.dt_s, p.c.substeps
 
     def observer(settings, truth, fdd_params):
-        monitor = scoring.monitors(settings, truth, fdd_params)
+        monitor = scoring.monitors(settings, truth, fdd_params, dt_s)
         return monitor, scoring.observer(settings, truth, monitor)
 
     def init_one(model, fdd_params, settings, scenario, truth, key):
@@ -612,7 +612,7 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
     scen, truth, keys = p.inputs(p.chunks[0])
 
     def cut(stage, model, fdd_params, settings, scenario, truth, key):
-        monitor = scoring.monitors(settings, truth, fdd_params)
+        monitor = scoring.monitors(settings, truth, fdd_params, c.dt_s)
         observer = scoring.observer(settings, truth, monitor)
         params, carry = simulate.start(model, fdd_params, scenario, key, c.dt_s, observer)
         words = noise.key_words(key)

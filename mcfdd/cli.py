@@ -11,6 +11,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from mcfdd.arguments import cluster, command
+
 
 def _say(message: str):
     print(message, file=sys.stderr, flush=True)
@@ -103,13 +105,24 @@ def cmd_sensitivity(args) -> int:
     return 0
 
 
+def cmd_probability(args) -> int:
+    import mcfdd
+    from mcfdd import flags, io
+
+    cfg = mcfdd.load_config(args.config, "campaign", flags.set_overrides(args.set))
+    out = io.out_dir("probability", args.config, args.out)
+    _start_runtime()
+    result = mcfdd.probability(cfg)
+    _written(result.save(out, f"Probability {Path(args.config).stem}"))
+    _print([*result.lines(), f"summary: {out / 'summary.md'}"])
+    return 0
+
+
 def cmd_replay(args) -> int:
     import mcfdd
     from mcfdd import flags, io
 
-    ids = flags.scenario_ids(args.scenarios)
-    _start_runtime()
-    result = mcfdd.replay(args.campaign_dir, ids)
+    result = mcfdd.replay(args.campaign_dir, flags.scenario_ids(args.scenarios))
     _written(result.save(io.out_dir("replay", args.campaign_dir, args.out)))
     _print(result.lines())
     return 0
@@ -188,61 +201,48 @@ def cmd_schema(args) -> int:
     return 0
 
 
-def _command(sub, name: str, func, summary: str, example: str | None, out: str):
-    """A subcommand taking a TOML config (unless ``example`` is None) and ``--out``."""
-    p = sub.add_parser(name, help=summary)
-    if example is not None:
-        p.add_argument("config", help=f"TOML config, e.g. configs/{example}")
-    p.add_argument("--out", help=f"output folder (default {out})")
-    p.set_defaults(func=func)
-    return p
-
-
 def build_parser() -> argparse.ArgumentParser:
-    from mcfdd import flags
-
     parser = argparse.ArgumentParser(
         prog="mcfdd", description="Monte-Carlo robustness analysis of flight-actuator fault detection and diagnosis "
         "(Ossmann and Varga, 2015): simulate, fit LPV models, run campaigns, tune, search worst cases.")
     sub = parser.add_subparsers(dest="command", required=True)
-    _command(sub, "simulate", cmd_simulate, "simulate the named runs of a config, write time histories and plots",
+    command(sub, "simulate", cmd_simulate, "simulate the named runs of a config, write time histories and plots",
              "fig5.toml", "results/simulate-<config>")
-    p = _command(sub, "campaign", cmd_campaign, "Monte-Carlo campaign over a scenario space: FAR, MDR, detection "
-                 "times", "loe_campaign.toml", "a new results/campaign-<config>[-N]")
+    p = command(sub, "campaign", cmd_campaign, "Monte-Carlo campaign over a scenario space: FAR, MDR, detection "
+                 "times", "loe_campaign.toml", "a new results/campaign-<config>[-N]",
+                 "fdd.loe.detection_tau=0.12 (the detection threshold)")
     p.add_argument("--scenarios", type=int, help="total number of scenarios, split evenly over the grid cells "
                    "(overrides campaign.scenarios; a multiple of the number of cells)")
     p.add_argument("--seed", type=int, help="override campaign.seed")
     p.add_argument("--chunk-size", type=int, help="override campaign.chunk_size (results do not depend on it)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     p.add_argument("--fdd", help="FDD fragment replacing the config's [fdd] table, e.g. a tune's tuned_fdd.toml")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config key by its dotted path, e.g. --set fdd.loe.detection_tau=0.12 (the "
-                   "detection threshold; repeatable)")
-    flags.cluster_flags(p)
-    p = _command(sub, "sensitivity", cmd_sensitivity, "what drives the verdicts: Sobol' indices, gradient screen "
+    cluster(p)
+    p = command(sub, "sensitivity", cmd_sensitivity, "what drives the verdicts: Sobol' indices, gradient screen "
                  "and regional sensitivity over a campaign space ([sensitivity] table)", "fault_free.toml",
-                 "a new results/sensitivity-<config>[-N]")
+                 "a new results/sensitivity-<config>[-N]", "sensitivity.samples=64")
     p.add_argument("--resume", action="store_true", help="continue the interrupted design runs in --out")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config key by its dotted path, e.g. --set sensitivity.samples=64 (repeatable)")
-    flags.cluster_flags(p)
-    p = _command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
+    cluster(p)
+    command(sub, "probability", cmd_probability, "how rare an event of a campaign is: per run, stratum and flight "
+             "hour by subset simulation, importance sampling or Monte Carlo ([probability] table)", "validation.toml",
+             "results/probability-<config>", "probability.budget=20000")
+    p = command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
                  "McNemar's exact test per outcome, detection-time differences", None,
                  "results/compare-<a>-vs-<b>")
     p.add_argument("campaign_a", metavar="DIR_A", help="folder of the first campaign (mcfdd campaign --out)")
     p.add_argument("campaign_b", metavar="DIR_B", help="folder of the second campaign, same space and seed")
-    p = _command(sub, "replay", cmd_replay, "named scenarios of a campaign (or sensitivity) folder again: time "
-                 "histories and a figure per run", None, "results/replay-<folder>")
+    p = command(sub, "replay", cmd_replay, "named scenarios of a campaign (or sensitivity) folder again: time "
+                "histories and a figure per run", None, "results/replay-<folder>")
     p.add_argument("campaign_dir", metavar="CAMPAIGN_DIR", help="folder of mcfdd campaign or mcfdd sensitivity")
     p.add_argument("--scenarios", required=True, metavar="IDS", help="comma-separated scenario ids, e.g. 481,3524")
-    _command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
+    command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
-    p = _command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,
+    p = command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,
                  "results/figures")
     p.add_argument("--configs", default="configs", help="folder holding fig3.toml, fig4.toml, fig5.toml")
-    _command(sub, "worst-case", cmd_worst_case, "tau_f or tau_d of a detector by gradient search, against Monte "
+    command(sub, "worst-case", cmd_worst_case, "tau_f or tau_d of a detector by gradient search, against Monte "
              "Carlo", "worst_case_stall.toml", "results/worst-case-<config>")
-    _command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
+    command(sub, "tune", cmd_tune, "tune a detector's evaluator and threshold by gradient; check on a held-out "
              "campaign", "tune_stall.toml", "the first free results/tune-<config>[-N]")
     p = sub.add_parser("schema", help="print the JSON Schema of a config kind (for editors and validators)")
     p.add_argument("kind", help="the config kind: simulate, campaign, fit-lpv, tune, worst-case or sweep")

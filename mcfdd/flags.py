@@ -2,21 +2,19 @@
 
 ``--set KEY=VALUE`` pairs, the ``campaign.*`` flags and an ``--fdd`` fragment become the dotted-path
 overrides of :func:`mcfdd.config.load_config`; a bad flag is a :class:`~mcfdd.config.ConfigError`
-naming the flag. Also the flags where a campaign's chunks run (:func:`cluster_flags`). Light to import
-(the configuration package is imported by the functions that read flags), so the command parses its
-arguments with it before anything heavy is loaded.
+naming the flag.
 """
 
 from __future__ import annotations
 
 import tomllib
 
+from mcfdd import config
+
 
 def set_overrides(pairs) -> dict:
     """``KEY=VALUE`` texts (the ``--set`` flag) as dotted-path overrides; VALUE is read as TOML (a bare word
     as a string)."""
-    from mcfdd import config
-
     overrides = {}
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
@@ -41,8 +39,6 @@ def campaign_overrides(set_pairs=(), flags: dict | None = None, fdd_path=None) -
     Traceback (most recent call last):
     mcfdd.config.base.ConfigError: --seed: -1 is outside the allowed range [0, 4294967295] (campaign.seed)
     """
-    from mcfdd import config
-
     overrides = set_overrides(set_pairs)
     for key, value in (flags or {}).items():
         if value is not None:
@@ -65,8 +61,6 @@ def scenario_ids(text: str) -> list[int]:
     Traceback (most recent call last):
     mcfdd.config.base.ConfigError: --scenarios: 'x' is not a scenario id (ids are integers >= 0, e.g. 481,3524)
     """
-    from mcfdd import config
-
     ids = []
     for item in text.split(","):
         item = item.strip()
@@ -75,19 +69,3 @@ def scenario_ids(text: str) -> list[int]:
                                      f"481,3524)")
         ids.append(int(item))
     return ids
-
-
-def cluster_flags(p):
-    """Where a campaign's chunks run (Dask distributed) and where compiled programs are kept."""
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDR", help="run the chunks on the Dask cluster of this scheduler, "
-                       "e.g. tls://HOST:8786 (tcp:// only inside a trusted network)")
-    where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local Dask cluster of N worker "
-                       "processes (127.0.0.1 only), closed at the end")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to reach --scheduler and then to wait for a worker (default 10)")
-    for flag, what in (("--tls-ca-file", "CA certificate"), ("--tls-cert", "client certificate"),
-                       ("--tls-key", "client certificate's key")):
-        p.add_argument(flag, metavar="FILE", help=f"TLS {what} for a tls:// scheduler (default: Dask's configuration)")
-    p.add_argument("--compile-cache", metavar="DIR|off", help="folder of JAX's persistent compilation cache, here "
-                   "and on the workers (default ~/.cache/mcfdd/jax); 'off' to compile every time")

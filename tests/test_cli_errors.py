@@ -347,7 +347,7 @@ except SystemExit as exit:
     code = exit.code
 heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("jax", "jaxlib", "numpy", "pandas", "pyarrow", "pydantic",
                                                             "matplotlib", "distributed")
-               or m.startswith("mcfdd.") and m not in ("mcfdd.cli", "mcfdd.devices", "mcfdd.flags"))
+               or m.startswith("mcfdd.") and m not in ("mcfdd.cli", "mcfdd.arguments", "mcfdd.devices"))
 print(code, heavy)
 """
 

@@ -218,8 +218,8 @@ def test_overrides_set_dotted_paths_and_list_entries():
 @pytest.mark.parametrize("overrides, message", [
     ({"campaign.scenario": 4}, "campaign.scenario: unknown key; allowed keys are chunk_size, design"),
     ({"fdd.lo.tau": 0.1}, "fdd.lo: unknown key; allowed keys are bank, loe, stall"),
-    ({"campaing.seed": 1}, "campaing: unknown key; allowed keys are campaign, evaluation, fdd, plant, sensitivity, "
-                          "space"),
+    ({"campaing.seed": 1}, "campaing: unknown key; allowed keys are campaign, evaluation, fdd, plant, probability, "
+                          "sensitivity, space"),
     ({"space.vcas": 250.0}, "space.vcas: unknown axis"),
     ({"campaign.seed.x": 1}, "campaign.seed: not a table"),
     ({"campaign..seed": 1}, "not a key path"),

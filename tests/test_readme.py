@@ -33,6 +33,9 @@ SHRINK = {  # config file -> changes (a list keeps its first entries)
                           "space": {"fault_onset_s": [6.0, 10.0], "t_start_s": [5.0, 15.0]}},
     "lpv_aileron.toml": {"envelope": {"grid": [2, 2], "validation_points": 1},
                          "optimiser": {"iterations": 2}, "training": 2, "validation": 1},
+    "validation.toml": {"campaign": {"duration_s": 20.0}, "space": {"manoeuvre_kind": ["doublet"],
+                                                                    "turbulence": ["moderate"]},
+                        "probability": {"samples": 50, "max_levels": 2, "budget": 50}},
     "tune_loe.toml": {"tune": {"iterations": 2}, "training": {"scenarios": 8, "duration_s": 20.0},
                       "validation": {"scenarios": 8, "chunk_size": 8, "duration_s": 20.0}},
     "worst_case_stall.toml": {"search": {"screening": 8, "starts": 1, "iterations": 2}},
@@ -44,7 +47,7 @@ def _shrunk(data: dict, changes: dict) -> dict:
         if isinstance(change, int) and isinstance(data[key], list):
             data[key] = data[key][:change]
         else:
-            data[key] = {**data[key], **change}
+            data[key] = {**data.get(key, {}), **change}
     return data
 
 
@@ -87,7 +90,7 @@ def test_every_block_is_one_the_suite_checks():
     kinds = {"python": 0, "": 0, "toml": 0}
     for lang, _ in BLOCKS:
         kinds[lang] += 1
-    assert kinds == {"python": 3, "": 5, "toml": 2}, kinds
+    assert kinds == {"python": 4, "": 6, "toml": 3}, kinds
 
 
 @pytest.fixture(scope="module")
@@ -136,6 +139,16 @@ def test_the_rare_event_block_runs_and_brackets_its_closed_form():
     assert names["plain"].hits == 0
     expected = (0.7 * names["est"].estimate + 0.3 * names["near"].estimate) * 3600.0 / 60.0
     assert names["rate"].estimate == pytest.approx(expected, rel=1e-12)
+
+
+def test_the_probability_block_runs_as_written(scratch):
+    """mcfdd.probability on the (shrunk) validation config: one stratum, its files, the numbers it states."""
+    names: dict = {}
+    exec(compile(_python("mcfdd.probability("), "README.md", "exec"), names)
+    result = names["result"]
+    assert result.event == "false_alarm" and len(result.strata) == 1 and result.rate is not None
+    assert result.overall.n_simulations == int(result.strata["simulations"].sum()) <= 50 + 2 * 45
+    assert (scratch / "results" / "p" / "summary.md").is_file()
 
 
 def test_the_slurm_script_uses_what_mcfdd_has(api):

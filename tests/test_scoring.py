@@ -74,7 +74,7 @@ class Recorded:
 def score_recorded(settings, truth, fdd_params, plant, fdd, dt_s: float, temperature=None):
     """The monitors' columns over recorded signals (leading axes: runs, samples), one run per lane."""
     def one(truth, plant, fdd):
-        monitor = scoring.monitors(settings, truth, fdd_params, temperature)
+        monitor = scoring.monitors(settings, truth, fdd_params, dt_s, temperature)
         observer = scoring.observer(settings, truth, monitor)
 
         def body(state, xs):
@@ -273,12 +273,12 @@ def numpy_stall_memory(rec: Recorded, i: int, w: dict):
     not clear (within stall loads and their grace time): eq. (14) run on that residual alone."""
     ev = rec.fdd_params.stall.evaluator
     r = np.abs(rec.signal("r_stall", i))
-    memory, t_last, out = 0.0, 0.0, np.zeros(rec.n_steps)
+    decay = np.exp(-ev.gamma * rec.dt)  # the FDD's evaluator steps at the sample time
+    memory, out = 0.0, np.zeros(rec.n_steps)
     for k in range(rec.n_steps):
         masked = 0.0 if w["clear"][k] else r[k]
         out[k] = memory + ev.alpha * masked
-        decay = np.exp(-ev.gamma * (rec.t[k] - t_last))
-        memory, t_last = decay * memory + ev.beta * (1.0 - decay) / ev.gamma * masked, rec.t[k]
+        memory = decay * memory + ev.beta * (1.0 - decay) / ev.gamma * masked
     return out
 
 

@@ -23,7 +23,7 @@ def run_one(model: closed_loop.PlantModel, fdd_params: system.FddParams, setting
             scenario: closed_loop.Scenario, truth: scoring.Truth, key, n_steps: int, dt_s: float, substeps: int,
             kinds: tuple[int, ...]) -> dict:
     """The scoring columns of one scenario (no time histories kept)."""
-    monitor = scoring.monitors(settings, truth, fdd_params)
+    monitor = scoring.monitors(settings, truth, fdd_params, dt_s)
     state, _ = simulate.run(model, fdd_params, scenario, key, n_steps, dt_s, substeps, kinds,
                             scoring.observer(settings, truth, monitor))
     return scoring.finalize(settings, monitor, state, n_steps * dt_s)

@@ -81,10 +81,20 @@ def fdd_step(fdd_params: system.FddParams, state: system.FddState, plant, t_s, d
 
 def start(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario, key,
           dt_s: float, observer: Observer = HISTORY):
-    """A run at t = 0: (plant parameters, carry (plant state, FDD state or None, observer state))."""
+    """A run at t = 0: (plant parameters, carry (plant state, FDD state or None, observer state)).
+
+    ``key`` draws the normals that start the plant's noise filters (:func:`start_from` takes them given).
+    """
+    return start_from(model, fdd_params, scenario, jax.random.normal(key, (closed_loop.loop(model).init_noise_dim,)),
+                      dt_s, observer)
+
+
+def start_from(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario,
+               init_normals, dt_s: float, observer: Observer = HISTORY):
+    """:func:`start` from given initial normals (``init_noise_dim`` of them)."""
     plant = closed_loop.loop(model)
     params = plant.prepare(model, scenario, dt_s)
-    plant_state = plant.init(params, jax.random.normal(key, (plant.init_noise_dim,)))
+    plant_state = plant.init(params, init_normals)
     zero = jnp.zeros_like(params.qbar_pa)
     fdd_state = None if fdd_params is None else system.init(fdd_params, zero)
     return params, (plant_state, fdd_state, observer.init(zero.dtype))
@@ -116,6 +126,25 @@ def run(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scen
         return advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds, observer)
 
     (_, _, seen), ys = scan_steps(body, carry, key, n_steps, closed_loop.loop(model).noise_dim)
+    return seen, ys
+
+
+def run_normals(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scenario: closed_loop.Scenario,
+                init_normals, normals, dt_s: float, substeps: int, kinds: tuple[int, ...],
+                observer: Observer = HISTORY):
+    """:func:`run` driven by given normals, so that a caller can move them (:mod:`mcfdd.analysis.probability`).
+
+    ``init_normals`` (``init_noise_dim``,) start the plant's noise filters and ``normals``
+    (n_steps, ``noise_dim``) are the scan's input, step k's row for sample k; with a campaign run's
+    normals it is that run. Returns (the observer's final state, its stacked per-step y).
+    """
+    params, carry = start_from(model, fdd_params, scenario, init_normals, dt_s, observer)
+
+    def body(carry, xs):
+        k, z = xs
+        return advance(model, params, fdd_params, carry, k, z, dt_s, substeps, kinds, observer)
+
+    (_, _, seen), ys = jax.lax.scan(body, carry, (jnp.arange(normals.shape[0]), normals))
     return seen, ys
 
 

@@ -117,7 +117,7 @@ def fdd_run(fdd_params: system.FddParams, settings: scoring.Settings, plant: clo
             truth: scoring.Truth, temperature, dt_s: float) -> dict:
     """The FDD over one stored history (leaves (T,)): the monitors' columns, with their smooth versions
     unless ``temperature`` is None."""
-    monitor = scoring.monitors(settings, truth, fdd_params, temperature)
+    monitor = scoring.monitors(settings, truth, fdd_params, dt_s, temperature)
     state, _ = simulate.fdd_over(fdd_params, plant, scoring.observer(settings, truth, monitor), dt_s, remat=True)
     return scoring.finalize(settings, monitor, state, plant.u_m.shape[0] * dt_s)
 

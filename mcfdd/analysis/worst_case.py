@@ -68,7 +68,7 @@ def run_point(model: closed_loop.PlantModel, fdd_params: system.FddParams, setti
     x = to_columns(box, anchor.altitude_m, u)
     scenario, onset = scenario_at(anchor, x)
     truth = scoring.Truth(onset, anchor.accept, anchor.nearest)
-    monitor = scoring.monitors(settings, truth, fdd_params, temperature)
+    monitor = scoring.monitors(settings, truth, fdd_params, dt_s, temperature)
     state, _ = simulate.run(model, fdd_params, scenario, key, n_steps, dt_s, substeps, kinds,
                             scoring.observer(settings, truth, monitor))
     return scoring.finalize(settings, monitor, state, n_steps * dt_s), x

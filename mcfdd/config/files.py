@@ -198,7 +198,7 @@ def json_schema(kind: str) -> dict:
 
     >>> schema = json_schema("campaign")
     >>> sorted(schema["properties"]), schema["additionalProperties"]
-    (['campaign', 'evaluation', 'fdd', 'plant', 'sensitivity', 'space'], False)
+    (['campaign', 'evaluation', 'fdd', 'plant', 'probability', 'sensitivity', 'space'], False)
     """
     return {"$schema": "https://json-schema.org/draft/2020-12/schema", **_kind(kind).model_json_schema()}
 

@@ -191,11 +191,66 @@ class SensitivityConfig(Section):
             raise Invalid("samples", f"{self.samples} is not a power of 2 (Sobol' points are balanced in powers of 2)")
 
 
+# Fraction of flight time at each turbulence level: MIL-F-8785C section 3.7.2.1 (and MIL-HDBK-1797),
+# probability of exceedance of the light, moderate and severe intensities at low altitude (below
+# 1,000 ft AGL): 1e-2, 1e-3 and 1e-5; a level's share is the difference of the exceedances.
+TURBULENCE_EXPOSURE = {"none": 0.99, "light": 9e-3, "moderate": 9.9e-4, "severe": 1e-5}
+EVENTS = ("false_alarm", "missed_detection", "stall_false_detection", "false_stall_identification_signal",
+          "false_stall_identification_model")
+ESTIMATORS = ("subset", "importance", "mc")
+
+
+class ExposureConfig(Section):
+    """Fraction of flight time per value of a categorical axis (``mcfdd probability``, per flight hour).
+
+    A stratum's weight is the product of its values' fractions over the axes, normalised over the
+    strata of the space (independent axes assumed); a value a table leaves out, and an axis without
+    a table, take equal shares of what the table leaves.
+    """
+
+    turbulence: dict[str, float] = spec(TURBULENCE_EXPOSURE, doc="fraction of flight time per turbulence level; "
+                                        "default from MIL-F-8785C 3.7.2.1 (probability of exceedance of light, "
+                                        "moderate and severe turbulence at low altitude: 1e-2, 1e-3, 1e-5)")
+    manoeuvre_kind: dict[str, float] = spec({}, doc="fraction of flight time per manoeuvre family; default: "
+                                            "equal shares (no public source: set it from flight data)")
+
+    def check(self):
+        for key, names in (("turbulence", columns.COLUMN["turbulence"].choices),
+                           ("manoeuvre_kind", columns.COLUMN["manoeuvre_kind"].choices)):
+            for name, value in getattr(self, key).items():
+                if name not in names:
+                    raise Invalid(f"{key}.{name}", f"not a {key} name; expected one of {', '.join(names)}")
+                if not 0.0 <= value <= 1.0:
+                    raise Invalid(f"{key}.{name}", f"{value!r} is not a fraction of flight time in [0, 1]")
+
+
+class ProbabilitySettings(Section):
+    """How rare an event is (``mcfdd probability``): its per-run probability per stratum and per flight hour."""
+
+    event: choice(EVENTS) = spec("false_alarm", doc="false_alarm and the stall ones over fault-free runs; "
+                                 "missed_detection per parametric fault kind over the runs that must be detected")
+    method: choice(ESTIMATORS) = spec("subset", doc="subset simulation, importance sampling around design points, "
+                                      "or plain Monte Carlo")
+    target_cov: float = spec(0.3, lo=0.0, lo_open=True, hi=10.0, doc="repeat independent estimator runs per stratum "
+                             "until their pooled coefficient of variation is below this (or the budget is spent)")
+    budget: int = spec(100_000, lo=1, hi=10**10, doc="simulations over all strata at most")
+    samples: int = spec(1000, lo=10, hi=10**7, doc="subset: samples per level; importance: samples; mc: runs of one "
+                        "estimator run")
+    p0: float = spec(0.1, lo=0.0, lo_open=True, hi=0.5, doc="subset: conditional probability of a level")
+    max_levels: int = spec(12, lo=1, hi=50, doc="subset: intermediate levels at most")
+    chunk: int = spec(250, lo=1, hi=10**6, doc="runs simulated at once (memory, not results)")
+    keep: int = spec(16, lo=1, hi=10_000, doc="failure points kept per stratum")
+    confidence: float = spec(0.95, lo=0.5, hi=0.999)
+    seed: int | None = spec(None, lo=0, hi=SEED_MAX, doc="estimator keys; default campaign.seed")
+    exposure: ExposureConfig = spec(ExposureConfig())
+
+
 class CampaignConfig(Scored):
     """``mcfdd campaign``: a scenario space sampled, simulated in chunks and scored."""
 
     campaign: CampaignSettings = spec(CampaignSettings())
     sensitivity: SensitivityConfig = spec(SensitivityConfig())
+    probability: ProbabilitySettings = spec(ProbabilitySettings())
 
     def check(self):
         self.check_space(self.campaign, "campaign")

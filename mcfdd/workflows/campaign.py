@@ -127,7 +127,8 @@ def scenario_bytes(setup: CampaignSetup) -> int:
 
     def one():
         scen, truth, key = jax.tree.map(lambda x: x[0], chunk_inputs(setup, c.seed, np.arange(1), 1))
-        observer = scoring.observer(setup.settings, truth, scoring.monitors(setup.settings, truth, setup.fdd_params))
+        monitor = scoring.monitors(setup.settings, truth, setup.fdd_params, c.dt_s)
+        observer = scoring.observer(setup.settings, truth, monitor)
         return scen, truth, key, simulate.start(setup.model, setup.fdd_params, scen, key, c.dt_s, observer)
 
     with precision(c.precision):

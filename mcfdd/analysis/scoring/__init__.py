@@ -47,10 +47,11 @@ __all__ = ["BOUNDS", "DETECTION", "Monitor", "Sample", "Settings", "Status", "Tr
            "monitors", "named_chain", "observer", "smooth", "stall", "table", "truth_monitors"]
 
 
-def monitors(settings: Settings, truth: Truth, fdd_params, temperature=None) -> Monitor:
+def monitors(settings: Settings, truth: Truth, fdd_params, dt_s: float, temperature=None) -> Monitor:
     """The chain of every outcome of a run (columns: see README, "What a campaign reports").
 
-    ``fdd_params`` gives the stall detector's threshold of its margins; with a ``temperature`` the
+    ``fdd_params`` gives the stall detector's threshold of its margins and its evaluator, which the
+    stall detector's monitor steps at the run's sample time ``dt_s`` (s); with a ``temperature`` the
     monitors also give their smooth versions (built only then: the campaign's step does not carry them).
     """
     tau = fdd_params.stall.tau
@@ -61,7 +62,7 @@ def monitors(settings: Settings, truth: Truth, fdd_params, temperature=None) -> 
         ("stall_events", stall.events(settings, truth, tau, temperature)),
         *((f"false_identification_{m}", stall.false_identification(settings, truth, m, temperature))
           for m in stall.METHODS),
-        ("stall_detector", stall.detector(settings, truth, tau, fdd_params.stall.evaluator, temperature)),
+        ("stall_detector", stall.detector(settings, truth, tau, fdd_params.stall.evaluator, dt_s, temperature)),
         ("loe_ratios", loe.ratios(settings, truth, temperature)),
         ("peaks", truth_monitors.peaks(settings, truth)),
         ("jams", stall.jams(settings, truth)),

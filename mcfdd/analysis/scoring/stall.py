@@ -63,28 +63,29 @@ METHODS = ("signal", "model")
 class Detector(NamedTuple):
     theta_max_free: jnp.ndarray
     memory: jnp.ndarray  # the evaluator's xi driven by the residual within stall loads and their grace
-    t_last: jnp.ndarray  # time of the last sample (s)
     soft: smooth.SoftMax | None
 
 
-def detector(s: Settings, truth: Truth, tau, evaluation: evaluator.NarendraParams, temperature=None) -> Monitor:
+def detector(s: Settings, truth: Truth, tau, evaluation: evaluator.NarendraParams, dt_s: float,
+             temperature=None) -> Monitor:
     """The stall detector at the quiet samples, less its memory of stall loads; ``tau`` its threshold (rod
-    units), ``evaluation`` its evaluator (14)."""
+    units), ``evaluation`` its evaluator (14), stepped at the FDD's sample time ``dt_s`` (its decay the FDD's own,
+    computed once per step)."""
     def init(dtype):
-        return Detector(jnp.asarray(-jnp.inf, dtype), jnp.zeros((), dtype), jnp.zeros((), dtype),
+        return Detector(jnp.asarray(-jnp.inf, dtype), jnp.zeros((), dtype),
                         None if temperature is None else smooth.softmax_init(dtype))
 
     def update(state: Detector, w: Windows, sample: Sample) -> Detector:
         # the same step as the FDD's evaluator, on the residual of the excluded samples only; at a clear
         # sample its theta is the memory before the sample (its input is 0 there)
         memory, remembered = evaluator.step(evaluation, state.memory, jnp.where(w.clear, 0.0, sample.fdd.r_stall),
-                                            w.t - state.t_last)
+                                            dt_s)
         theta = sample.fdd.theta_stall - remembered
         soft = state.soft
         if soft is not None:
             soft = smooth.softmax_step(temperature, soft, smooth.log_stat(theta), w.quiet)
         return Detector(jnp.where(w.quiet, jnp.maximum(state.theta_max_free, theta), state.theta_max_free), memory,
-                        w.t, soft)
+                        soft)
 
     def finalize(state: Detector, end: Windows) -> dict:
         fired = end.ok & (state.theta_max_free >= tau)
