@@ -26,6 +26,7 @@ _EXPORTS = {  # module -> the names it gives the public face
     "mcfdd.workflows.figures": ("FiguresResult", "paper_figures"),
     "mcfdd.workflows.fit_lpv": ("LpvFitResult", "fit_lpv"),
     "mcfdd.workflows.probability": ("ProbabilityResult", "probability"),
+    "mcfdd.workflows.replay": ("ReplayError", "ReplayResult", "replay"),
     "mcfdd.workflows.sensitivity": ("SensitivityResult", "sensitivity"),
     "mcfdd.workflows.simulate": ("Histories", "simulate"),
     "mcfdd.workflows.tune": ("TuneResult", "tune"),

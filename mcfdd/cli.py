@@ -118,6 +118,16 @@ def cmd_probability(args) -> int:
     return 0
 
 
+def cmd_replay(args) -> int:
+    import mcfdd
+    from mcfdd import flags, io
+
+    result = mcfdd.replay(args.campaign_dir, flags.scenario_ids(args.scenarios))
+    _written(result.save(io.out_dir("replay", args.campaign_dir, args.out)))
+    _print(result.lines())
+    return 0
+
+
 def cmd_compare(args) -> int:
     import mcfdd
 
@@ -221,6 +231,10 @@ def build_parser() -> argparse.ArgumentParser:
                  "results/compare-<a>-vs-<b>")
     p.add_argument("campaign_a", metavar="DIR_A", help="folder of the first campaign (mcfdd campaign --out)")
     p.add_argument("campaign_b", metavar="DIR_B", help="folder of the second campaign, same space and seed")
+    p = command(sub, "replay", cmd_replay, "named scenarios of a campaign (or sensitivity) folder again: time "
+                "histories and a figure per run", None, "results/replay-<folder>")
+    p.add_argument("campaign_dir", metavar="CAMPAIGN_DIR", help="folder of mcfdd campaign or mcfdd sensitivity")
+    p.add_argument("--scenarios", required=True, metavar="IDS", help="comma-separated scenario ids, e.g. 481,3524")
     command(sub, "fit-lpv", cmd_fit_lpv, "fit the LPV gain models of the fault models to the nonlinear actuator",
              "lpv_aileron.toml", "results/fit-lpv-<config>")
     p = command(sub, "figures", cmd_figures, "the paper's Figs. 3-6 from configs fig3/fig4/fig5.toml", None,

@@ -6,7 +6,7 @@ import math
 
 import pandas as pd
 
-from mcfdd.report import NA, per_hour_text
+from mcfdd.report import FAULT_BANDS, NA, per_hour_text
 
 
 def value_text(value, spec: str = ".3g", unit: str = "") -> str:
@@ -103,3 +103,17 @@ def figures_lines(sweep: pd.DataFrame, grid: dict, stall_events: pd.DataFrame, e
         lines.append(f"stall event {e['onset_s']:.2f}-{e['end_s']:.2f} s: eta latency " + ", ".join(parts))
     lines += [f"eta ({method}) outside stall events: {seconds:.2f} s" for method, seconds in eta_outside_s.items()]
     return lines
+
+
+def replay_line(row) -> str:
+    """One replayed scenario's verdicts (a row of its scenario table), as ``mcfdd replay`` prints them."""
+    def at(column):
+        t = float(row[column])
+        return value_text(t if math.isfinite(t) else float("nan"), ".2f", " s")
+
+    size = f" {row['fault_size']:.3g}" if row["fault_kind"] in FAULT_BANDS else ""
+    onset = "" if row["fault_kind"] == "none" else f" at {row['fault_onset_s']:.3g} s"
+    return (f"scenario {row['scenario_id']}: {row['fault_kind']}{size}{onset}, {row['manoeuvre_kind']}; false alarm "
+            f"{at('false_alarm_time_s')}, detection {at('detection_time_s')}, identified model "
+            f"{row['identified_model']} ({at('identification_time_s')}), largest fault-free ratio before the fault "
+            f"{value_text(float(row['loe_ratio0_max_pre']))}, status {row['status']}")

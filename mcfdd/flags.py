@@ -50,3 +50,22 @@ def campaign_overrides(set_pairs=(), flags: dict | None = None, fdd_path=None) -
     if fdd_path:
         overrides["fdd"] = config.to_dict(config.load_fdd_fragment(fdd_path))
     return overrides
+
+
+def scenario_ids(text: str) -> list[int]:
+    """The ``--scenarios`` flag of ``mcfdd replay``: comma-separated scenario ids, e.g. '481,3524'.
+
+    >>> scenario_ids("481, 3524")
+    [481, 3524]
+    >>> scenario_ids("481,x")
+    Traceback (most recent call last):
+    mcfdd.config.base.ConfigError: --scenarios: 'x' is not a scenario id (ids are integers >= 0, e.g. 481,3524)
+    """
+    ids = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item.isdigit():
+            raise config.ConfigError(f"--scenarios: {item!r} is not a scenario id (ids are integers >= 0, e.g. "
+                                     f"481,3524)")
+        ids.append(int(item))
+    return ids

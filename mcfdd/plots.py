@@ -43,6 +43,58 @@ def run_timeseries(df: pd.DataFrame, title: str) -> Figure:
     return fig
 
 
+def _event_times(row) -> dict:
+    """The campaign's times of a replayed run to mark: label -> (time s, colour), finite ones only."""
+    marks = {"fault onset": ("fault_onset_s", "k"), "false alarm": ("false_alarm_time_s", "C3"),
+             "detection": ("detection_time_s", "C2"), "identification": ("identification_time_s", "C4")}
+    return {label: (float(row[col]), colour) for label, (col, colour) in marks.items()
+            if np.isfinite(row[col]) and (label != "fault onset" or row["fault_kind"] != "none")}
+
+
+def replay_run(df: pd.DataFrame, row, models, detection_tau: float) -> Figure:
+    """A replayed campaign run: deflections with stall loads, the LOE ratios theta_i / ||u|| (where excited) against
+    the detection threshold, the decisions, the stall detector; the campaign's onset, alarm, detection and
+    identification times (``row``, its scenario-table row) marked in every panel."""
+    t = df["t_s"].to_numpy()
+    fig = Figure(figsize=(10, 9), constrained_layout=True)
+    ax1, ax2, ax3, ax4 = fig.subplots(4, 1, sharex=True, gridspec_kw={"height_ratios": [2, 2, 1.2, 1.2]})
+    ax1.plot(t, df["u_c_deg"], label="command u_c", color="C0")
+    ax1.plot(t, df["u_deg"], label="measured u", color="C1", lw=1.0)
+    _shade(ax1, t, df["stall"], color="red", alpha=0.15, label="stall load")
+    ax1.set_ylabel("deflection (deg)")
+    size = f" {row['fault_size']:.3g}" if row["fault_kind"] not in ("none", "jamming") else ""
+    ax1.set_title(f"scenario {row['scenario_id']}: {row['fault_kind']}{size}, {row['manoeuvre_kind']}, "
+                  f"{row['vcas_kt']:.0f} kt, {row['altitude_m']:.0f} m")
+    excited = df["excited"].to_numpy(dtype=bool)
+    ratios = np.where(excited[:, None], df[[f"ratio_{i}" for i in range(len(models))]].to_numpy(), np.nan)
+    for i, name in enumerate(models):
+        ax2.plot(t, ratios[:, i], label=name, lw=1.2 if i == 0 else 0.8)
+    ax2.axhline(detection_tau, color="k", ls=":", lw=1.0, label=f"detection_tau {detection_tau:g}")
+    _shade(ax2, t, ~excited, color="0.85", alpha=0.6, label="not excited")
+    if (ratios[np.isfinite(ratios)] > 0).any():
+        ax2.set_yscale("log")
+    ax2.set_ylabel("theta_i / ||u||")
+    ax2.legend(loc="best", fontsize=7, ncol=4, framealpha=0.6)
+    ax3.step(t, df["decoded_model"], where="post", color="0.6", lw=0.8, label="decoded (15)")
+    ax3.step(t, df["detected_model"], where="post", color="C4", label="identified (confirmed)")
+    _shade(ax3, t, df["fault_detected"], color="C2", alpha=0.2, label="fault detected")
+    ax3.set_yticks(range(-1, len(models)), ["none", *models], fontsize=7)
+    ax3.set_ylabel("decision")
+    ax3.legend(loc="upper left", fontsize=7)
+    ax4.plot(t, df["theta_stall_deg"], color="C5", label="stall detector theta")
+    _shade(ax4, t, df["eta_stall"], color="red", alpha=0.15, label="eta = 1 (stall identified)")
+    ax4.set_ylabel("theta (deg)")
+    ax4.set_xlabel("time (s)")
+    ax4.legend(loc="upper left", fontsize=7)
+    for label, (when, colour) in _event_times(row).items():
+        for ax in (ax1, ax2, ax3, ax4):
+            ax.axvline(when, color=colour, ls="--", lw=1.0, label=label if ax is ax1 else None)
+    ax1.legend(loc="upper right", fontsize=7)
+    for ax in (ax1, ax2, ax3, ax4):
+        ax.grid(alpha=0.3)
+    return fig
+
+
 def flight_state(df: pd.DataFrame, title: str) -> Figure:
     """Flight of a full-aircraft run: speed and altitude, attitude, aerodynamic angles, load factor."""
     t = df["t_s"].to_numpy()

@@ -196,29 +196,32 @@ def gaps(df: pd.DataFrame, deg_per_m: float) -> pd.DataFrame:
 NA = "n/a"  # printed where a value does not exist (a rate of no runs, the time of no detection)
 
 
-def _fmt(v, digits=3):
+def fmt(v, digits=3):
+    """A table cell of a number (``digits`` significant), or n/a for nan."""
     if isinstance(v, float):
         return NA if math.isnan(v) else f"{v:.{digits}g}"
     return str(v)
 
 
-def _times(*values) -> str:
+def timing(*values) -> str:
     """'a / b / c' of durations in s, or n/a when there are none."""
-    return NA if all(math.isnan(v) for v in values) else " / ".join(_fmt(v) for v in values)
+    return NA if all(math.isnan(v) for v in values) else " / ".join(fmt(v) for v in values)
 
 
 def _stall_cell(identified: int, events: int, worst_s: float) -> str:
-    return NA if events == 0 else f"{identified} (worst {_fmt(worst_s)} s)"
+    return NA if events == 0 else f"{identified} (worst {fmt(worst_s)} s)"
 
 
-def _interval(k, n, lo, hi):
+def interval(k, n, lo, hi):
+    """A table cell of a count of n runs: 'k/n = rate [lo, hi]', or n/a without runs."""
     if n == 0:
         return NA
     return f"{k}/{n} = {k / n:.3g} [{lo:.3g}, {hi:.3g}]"
 
 
-def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict) -> str:
-    """Human-readable campaign report."""
+def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFrame, meta: dict,
+             replay: str = "") -> str:
+    """Human-readable campaign report; ``replay``: the command replaying the bounds' witnesses."""
     overall = summ[summ["stratum"] == "overall"].iloc[0]
     stalls = overall["stall_events"] > 0
     lines = [f"# {title}", "", f"{overall['runs']} scenarios ({overall['runs_failed']} failed numerically); "
@@ -229,7 +232,7 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
              "accuracy and time, false identifications and the confusion matrix. False alarms count per "
              "fault-free run (a faulty run can false-alarm only before its onset): LOE detection, any alarm (LOE "
              "detection or a stall identification outside stall loads) and false identification; the overall "
-             f"row adds their rate per hour of scored fault-free time ({_fmt(overall['scored_fault_free_h'])} h: "
+             f"row adds their rate per hour of scored fault-free time ({fmt(overall['scored_fault_free_h'])} h: "
              "each run after its settling time)."
              + ("" if stalls else " No stall load occurred in any run, so the table has no stall columns."), "",
              f"Overall false alarms: LOE {per_hour_text(overall, 'loe')}, any alarm "
@@ -249,19 +252,21 @@ def markdown(title: str, summ: pd.DataFrame, conf: pd.DataFrame, gap: pd.DataFra
         free, fid = r["fault_free_runs"], (r["false_identification_rate_lo"], r["false_identification_rate_hi"])
         lines.append(
             f"| {label} | {r['runs']} | {free} "
-            f"| {_interval(r['false_alarms_loe'], free, r['far_loe_lo'], r['far_loe_hi'])} "
-            f"| {_interval(r['false_alarms_any'], free, r['far_any_lo'], r['far_any_hi'])} "
-            f"| {_interval(r['false_identifications'], free, *fid)} "
-            f"| {r['faulty_runs']} | {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
-            f"| {_times(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} | "
-            f"{_interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
-            f"| {_times(r['identification_time_median_s'], r['identification_time_max_s'])} |" + stall_cells)
+            f"| {interval(r['false_alarms_loe'], free, r['far_loe_lo'], r['far_loe_hi'])} "
+            f"| {interval(r['false_alarms_any'], free, r['far_any_lo'], r['far_any_hi'])} "
+            f"| {interval(r['false_identifications'], free, *fid)} "
+            f"| {r['faulty_runs']} | {interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
+            f"| {timing(r['detection_time_median_s'], r['detection_time_p95_s'], r['detection_time_max_s'])} | "
+            f"{interval(r['identified_correctly'], r['identified'], r['identification_lo'], r['identification_hi'])} "
+            f"| {timing(r['identification_time_median_s'], r['identification_time_max_s'])} |" + stall_cells)
     lines += ["", "## Detection bounds (eqs. 26-27)", "",
               "| detector | tau_f | at scenario | tau_d | at scenario | gap tau_d - tau_f | units |",
               "|---|---|---|---|---|---|---|"]
     for _, r in gap.iterrows():
-        lines.append(f"| {r['detector']} | {_fmt(r['tau_f'], 4)} | {r['tau_f_scenario_id']} | {_fmt(r['tau_d'], 4)} "
-                     f"| {r['tau_d_scenario_id']} | {_fmt(r['gap'], 4)} | {r['units']} |")
+        lines.append(f"| {r['detector']} | {fmt(r['tau_f'], 4)} | {r['tau_f_scenario_id']} | {fmt(r['tau_d'], 4)} "
+                     f"| {r['tau_d_scenario_id']} | {fmt(r['gap'], 4)} | {r['units']} |")
+    if replay:
+        lines += ["", f"Replay these scenarios (time histories and a figure per run): `{replay}`"]
     lines += ["", "## Confusion: true (nearest) model against first identified fault model", "",
               "| true \\ decided | " + " | ".join(conf.columns) + " |", "|---" * (len(conf.columns) + 1) + "|"]
     for name, row in conf.iterrows():
@@ -274,167 +279,6 @@ def figures_markdown(drawn: dict, left_out: dict) -> str:
     lines = ["", "## Figures", ""]
     lines += [f"- `{name}.png`: {what}" for name, what in drawn.items()]
     lines += [f"- `{name}.png` left out: {why}." for name, why in left_out.items()]
-    return "\n".join(lines) + "\n"
-
-
-# --------------------------------------------------------------------------------------------
-# Worst-case search and tuning (``mcfdd worst-case``, ``mcfdd tune``)
-
-SEARCH_METHODS = {
-    "gradient search (Sobol screening + projected gradient)": ("screening", "gradient"),
-    "Sobol screening alone": ("screening",),
-    "Monte Carlo, equal number of simulations": ("monte_carlo",),
-    "Monte Carlo, equal run time": ("monte_carlo", "monte_carlo_extra"),
-}
-
-
-def search_summary(df: pd.DataFrame, value: str, bound: str, run_time_s: dict) -> pd.DataFrame:
-    """Worst bound found by each method with its row (``df`` holds one row per simulation).
-
-    ``bound`` is 'free' (the worst case is the largest value) or 'detect' (the smallest);
-    ``run_time_s`` maps the ``method`` labels of ``df`` to their run times (s).
-    """
-    rows = []
-    for name, methods in SEARCH_METHODS.items():
-        sub = df[df["method"].isin(methods)]
-        best, row = metrics.bound_with_witness(sub[value].to_numpy(), sub.index.to_numpy(),
-                                               "sup" if bound == "free" else "inf")
-        rows.append({"method": name, "simulations": int(len(sub)),
-                     "run_time_s": float(sum(run_time_s.get(m, 0.0) for m in methods)), value: best, "row": row})
-    return pd.DataFrame(rows)
-
-
-def search_verdict(summ: pd.DataFrame, value: str, bound: str, restarted: int, pool_left: int) -> str:
-    """Whether the gradient search found a worse bound than Monte Carlo at equal run time, and if not, what the
-    search's own record shows (``summ``: :func:`search_summary`; starts replaced and pool points left unused)."""
-    by = summ.set_index("method")[value]
-    grad, mc = by.iloc[0], by["Monte Carlo, equal run time"]
-    name, worse = ("tau_f", "larger") if bound == "free" else ("tau_d", "smaller")
-    if not np.isfinite(grad) or not np.isfinite(mc):
-        return f"No comparison at equal run time: a method found no run with the bound ({grad}, {mc})."
-    if (grad > mc) if bound == "free" else (grad < mc):
-        return (f"At equal run time the gradient search's {name} ({_fmt(grad, 5)}) is {worse} than Monte Carlo's "
-                f"({_fmt(mc, 5)}): the search found a worse case.")
-    return (f"At equal run time the gradient search's {name} ({_fmt(grad, 5)}) is not {worse} than Monte Carlo's "
-            f"({_fmt(mc, 5)}): the search did not earn its cost here. Its starts were replaced {restarted} times "
-            f"({pool_left} screened runs with the event left); a worst case in another categorical cell than the "
-            f"starts' (manoeuvre family, turbulence level) or on a plateau of the smooth statistic (no gradient) is "
-            f"out of its reach; more starts or screening move it there.")
-
-
-def worst_case_markdown(title: str, summ: pd.DataFrame, df: pd.DataFrame, value: str, bound: str, parameters, notes,
-                        meta: dict) -> str:
-    """Report of a worst-case search: methods compared, the worst scenarios, progress per start.
-
-    ``summ`` is :func:`search_summary` of ``df``; ``parameters`` the scenario columns to show.
-    """
-    lines = [f"# {title}", "", *notes, "", f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision "
-             f"{meta.get('git_revision')}.", "", f"| method | simulations | run time (s) | worst {value} | row |",
-             "|---|---|---|---|---|"]
-    for _, r in summ.iterrows():
-        lines.append(f"| {r['method']} | {r['simulations']} | {r['run_time_s']:.1f} | {_fmt(r[value], 5)} | "
-                     f"{r['row']} |")
-    rows = [int(r) for r in summ["row"] if r >= 0]
-    lines += ["", "## Worst scenarios", "", "| parameter | " + " | ".join(summ["method"][summ["row"] >= 0]) + " |",
-              "|---" * (len(rows) + 1) + "|"]
-    for name in [*parameters, value]:
-        lines.append(f"| {name} | " + " | ".join(_fmt(df.loc[r, name], 5) if not isinstance(df.loc[r, name], str)
-                                                else df.loc[r, name] for r in rows) + " |")
-    grad = df[df["method"] == "gradient"]
-    if len(grad):
-        lines += ["", "## Gradient search per start", "", "| start (screening row) | at start | after the last step "
-                  "| best |", "|---|---|---|---|"]
-        worst = max if bound == "free" else min
-        for start, g in grad.groupby("start"):
-            g = g.sort_values("iteration")
-            values = g[value].to_numpy()
-            finite = values[np.isfinite(values)]
-            lines.append(f"| {start} | {_fmt(values[0], 5)} | {_fmt(values[-1], 5)} | "
-                         f"{_fmt(worst(finite), 5) if finite.size else NA} |")
-    return "\n".join(lines) + "\n"
-
-
-def validation_table(frames: dict, deg_per_m: float, identification: str,
-                     scored_s: float | None = None) -> pd.DataFrame:
-    """Held-out campaign outcomes side by side: one row per FDD setting (e.g. 'before', 'after').
-
-    ``frames`` maps the setting to its campaign scenario table; ``stall_detector_fires`` counts runs
-    whose stall detector reached its threshold outside stall loads (``stall_false_detection``),
-    ``stall_late_or_missed`` runs with a relevant stall event that the ``identification`` method
-    ('signal' or 'model') did not identify within the stall window (``stall_missed_<method>``).
-    """
-    rows = []
-    for label, df in frames.items():
-        overall = summary(df, scored_s).query("stratum == 'overall'").iloc[0]
-        gap = gaps(df, deg_per_m).set_index("detector")
-        row = {"fdd": label, **{k: overall[k] for k in (
-            "runs", *FALSE_ALARM_COLUMNS, "eta_false_alarms_signal", "faulty_runs", "missed", "mdr", "mdr_lo",
-            "mdr_hi", "identification_accuracy",
-            "detection_time_median_s", "detection_time_p95_s", "detection_time_max_s", "stall_events",
-            "stall_identified_signal", "stall_identified_model", "stall_worst_latency_signal_s",
-            "stall_worst_latency_model_s")}, "stall_detector_fires": int(df["stall_false_detection"].sum()),
-            "stall_late_or_missed": int(df[f"stall_missed_{identification}"].sum())}
-        for det in gap.index:
-            for k in ("tau_f", "tau_d", "gap"):
-                row[f"{det}_{k}"] = gap.loc[det, k]
-            row[f"{det}_normalised_gap"] = gap.loc[det, "gap"] / gap.loc[det, "tau_f"]
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def tuning_markdown(title: str, detector: str, history: pd.DataFrame, best: int, before: dict,
-                    parameters: pd.DataFrame, validation: pd.DataFrame, notes, meta: dict,
-                    scan: pd.DataFrame | None = None) -> str:
-    """Report of a tuning run: parameters and training gap before (``before``: tau_f and tau_d of
-    the configured FDD) and after (iteration ``best`` of ``history``), the threshold scan if one
-    was made, the held-out campaign side by side."""
-    units = "deg" if detector == "stall" else "theta/||u||"
-    chosen = history.iloc[best]
-    first = {**before, "normalised_gap": (before["tau_d"] - before["tau_f"]) / before["tau_f"]}
-    lines = [f"# {title}", "", *notes, "", f"seed {meta.get('seed')}, mcfdd {meta.get('version')}, revision "
-             f"{meta.get('git_revision')}.", "", "## Parameters", "", "| parameter | before | after |", "|---|---|---|"]
-    for _, r in parameters.iterrows():
-        lines.append(f"| {r['parameter']} | {_fmt(r['before'], 5)} | {_fmt(r['after'], 5)} |")
-    lines += ["", f"## Training set (iteration {best} of {len(history) - 1} chosen)", "",
-              f"| | tau_f ({units}) | tau_d ({units}) | gap | normalised gap (tau_d - tau_f) / tau_f |",
-              "|---|---|---|---|---|"]
-    for label, r in (("before", first), ("after", chosen)):
-        lines.append(f"| {label} | {_fmt(r['tau_f'], 5)} | {_fmt(r['tau_d'], 5)} | {_fmt(r['tau_d'] - r['tau_f'], 5)} "
-                     f"| {_fmt(r['normalised_gap'], 4)} |")
-    if scan is not None:
-        lines += ["", "## Thresholds on the training set (negative gap)", "",
-                  "| " + " | ".join(scan.columns) + " |", "|---" * len(scan.columns) + "|"]
-        lines += ["| " + " | ".join(_fmt(v, 4) if isinstance(v, float) else str(v) for v in r) + " |"
-                  for r in scan.itertuples(index=False)]
-    lines += ["", "## Held-out campaign", "", "| | " + " | ".join(validation["fdd"]) + " |",
-              "|---" * (len(validation) + 1) + "|"]
-    for name, cell in (
-        ("runs", lambda r: str(r["runs"])),
-        ("fault-free runs", lambda r: str(r["fault_free_runs"])),
-        ("LOE false alarms (per fault-free run)",
-         lambda r: _interval(r["false_alarms_loe"], r["fault_free_runs"], r["far_loe_lo"], r["far_loe_hi"])),
-        ("any false alarm, incl. eta outside stall (per fault-free run)",
-         lambda r: _interval(r["false_alarms_any"], r["fault_free_runs"], r["far_any_lo"], r["far_any_hi"])),
-        ("false identifications (per fault-free run)",
-         lambda r: _interval(r["false_identifications"], r["fault_free_runs"], r["false_identification_rate_lo"],
-                             r["false_identification_rate_hi"])),
-        ("MDR", lambda r: _interval(r["missed"], r["faulty_runs"], r["mdr_lo"], r["mdr_hi"])),
-        ("correct identification (of identified runs)", lambda r: _fmt(r["identification_accuracy"])),
-        ("detection time median / p95 / max (s)",
-         lambda r: _times(r["detection_time_median_s"], r["detection_time_p95_s"], r["detection_time_max_s"])),
-        ("stall detector above tau outside stall loads (runs)", lambda r: str(r["stall_detector_fires"])),
-        ("eta = 1 outside stall loads (runs, signal)", lambda r: str(r["eta_false_alarms_signal"])),
-        ("stall events identified, signal (worst latency s)", lambda r: f"{r['stall_identified_signal']} / "
-         f"{r['stall_events']} ({_fmt(r['stall_worst_latency_signal_s'])})"),
-        ("stall events identified, model (worst latency s)", lambda r: f"{r['stall_identified_model']} / "
-         f"{r['stall_events']} ({_fmt(r['stall_worst_latency_model_s'])})"),
-        ("runs with a stall load identified late (after the stall window) or not",
-         lambda r: str(r["stall_late_or_missed"])),
-        (f"{detector} tau_f / tau_d ({units}) / normalised gap", lambda r: " / ".join(
-            _fmt(r[f"{'stall_detector' if detector == 'stall' else 'loe_bank'}_{k}"], 4)
-            for k in ("tau_f", "tau_d", "normalised_gap"))),
-    ):
-        lines.append(f"| {name} | " + " | ".join(cell(r) for _, r in validation.iterrows()) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -507,8 +351,8 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
         missed = g["missed"].to_numpy(dtype=bool)
         a = metrics.rate(int(missed[sep].sum()), int(sep.sum()))
         b = metrics.rate(int(missed[~sep].sum()), int((~sep).sum()))
-        lines.append(f"- {kind}: missed {_interval(a['k'], a['n'], a['lo'], a['hi'])} of the separable runs (the FDD "
-                     f"misses what it could see), {_interval(b['k'], b['n'], b['lo'], b['hi'])} of the runs not "
+        lines.append(f"- {kind}: missed {interval(a['k'], a['n'], a['lo'], a['hi'])} of the separable runs (the FDD "
+                     f"misses what it could see), {interval(b['k'], b['n'], b['lo'], b['hi'])} of the runs not "
                      "separable under this uncertainty (nothing could).")
     if det.empty:
         return "\n".join(lines + ["No parametric faults in this campaign."]) + "\n"
@@ -517,17 +361,18 @@ def detectability_markdown(det: pd.DataFrame, df: pd.DataFrame) -> str:
     for _, r in det.iterrows():
         lines.append(f"| {r['fault_kind']} | {r['qbar_kpa_bin']} | {r['load_fraction_bin']} "
                      f"| {'yes' if r['separable'] else 'no'} ({r['separable_runs']}/{r['faulty_runs']}) "
-                     f"| {_fmt(r['fault_distance_median'])} / {_fmt(r['uncertainty_distance_median'])} "
-                     f"| {_interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
+                     f"| {fmt(r['fault_distance_median'])} / {fmt(r['uncertainty_distance_median'])} "
+                     f"| {interval(r['missed'], r['faulty_runs'], r['mdr_lo'], r['mdr_hi'])} "
                      f"| {r['missed_separable']}/{r['separable_runs']} "
-                     f"| {_interval(r['false_alarms'], r['fault_free_runs'], r['far_lo'], r['far_hi'])} |")
+                     f"| {interval(r['false_alarms'], r['fault_free_runs'], r['far_lo'], r['far_hi'])} |")
     return "\n".join(lines) + "\n"
 
 
 def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str = "the campaign's runs",
-                     top: int = 3) -> str:
+                     top: int = 3, replay: str = "") -> str:
     """Section of summary.md: the top factors of the false alarms and misses (regional sensitivity of ``runs``,
-    :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses."""
+    :func:`mcfdd.workflows.sensitivity.tables.regional_table`) and the worst witnesses (``replay``: the command
+    replaying them)."""
     lines = ["", "## What drives the false alarms and misses", "",
              f"Regional sensitivity of {runs} (no extra simulation): each parameter's values in the runs with the "
              "event against the others, ranked by the distance D (Kolmogorov-Smirnov for ranges, total variation "
@@ -546,7 +391,8 @@ def drivers_markdown(regional: pd.DataFrame, witnesses: pd.DataFrame, runs: str 
     for outcome, g in witnesses.groupby("outcome", sort=False):
         lines.append(f"- Worst {outcome.replace('_', ' ')} witnesses: " + ", ".join(
             f"scenario {r.scenario_id} ({r.measure} {r.value:.3g})" for r in g.itertuples()) + ".")
-    lines.append("- Replay of a witness: not available in this version (its command will be given here).")
+    if replay:
+        lines.append(f"- Replay the witnesses (time histories and a figure per run): `{replay}`.")
     return "\n".join(lines) + "\n"
 
 
@@ -562,12 +408,12 @@ def stall_scoring_markdown(df: pd.DataFrame) -> str:
         jam = metrics.rate(int(taken.sum()), len(jammed))
         after = (jammed["jam_taken_for_stall_time_s"] - jammed["fault_onset_s"])[taken]
         t = metrics.quantiles(after)
-        when = f"; time after the jam onset median {_fmt(t['median'])} s, max {_fmt(t['max'])} s" if taken.any() else ""
+        when = f"; time after the jam onset median {fmt(t['median'])} s, max {fmt(t['max'])} s" if taken.any() else ""
         lines.append(f"- Jammed runs with eta = 1 (either identification method) on the jammed rod: "
-                     f"{_interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}{when}.")
+                     f"{interval(jam['k'], jam['n'], jam['lo'], jam['hi'])}{when}.")
     else:
         lines.append("- No jammed runs in this campaign.")
-    lines.append(f"- LOE false alarms in fault-free runs: {_interval(loe['k'], loe['n'], loe['lo'], loe['hi'])}.")
+    lines.append(f"- LOE false alarms in fault-free runs: {interval(loe['k'], loe['n'], loe['lo'], loe['hi'])}.")
     return "\n".join(lines) + "\n"
 
 
@@ -584,11 +430,11 @@ def compare_lines(outcomes: pd.DataFrame, times: pd.DataFrame, labels) -> list[s
     runs detected by both and the median of its difference b - a with the Wilcoxon signed-rank p."""
     a, b = labels
     rows = [f"| {r['outcome']} ({r['counted_on']}) "
-            f"| {_interval(r['events_a'], r['runs'], r['rate_a_lo'], r['rate_a_hi'])}"
-            f" | {_interval(r['events_b'], r['runs'], r['rate_b_lo'], r['rate_b_hi'])} | {r['only_a']} / {r['only_b']} "
+            f"| {interval(r['events_a'], r['runs'], r['rate_a_lo'], r['rate_a_hi'])}"
+            f" | {interval(r['events_b'], r['runs'], r['rate_b_lo'], r['rate_b_hi'])} | {r['only_a']} / {r['only_b']} "
             f"| {r['p_value']:.3g} |" for _, r in outcomes[outcomes["runs"] > 0].iterrows()]
-    tim = [f"| {r['fault_kind']} | {r['runs']} | {_fmt(r['median_a'])} | {_fmt(r['median_b'])} | "
-           f"{_fmt(r['median_difference'])} | {_fmt(r['p_value'])} |" for _, r in times.iterrows()]
+    tim = [f"| {r['fault_kind']} | {r['runs']} | {fmt(r['median_a'])} | {fmt(r['median_b'])} | "
+           f"{fmt(r['median_difference'])} | {fmt(r['p_value'])} |" for _, r in times.iterrows()]
     head = (f"| fault (detection latency) | detected by both | {a} median (s) | {b} median (s) | median of {b} - {a} "
             "(s) | Wilcoxon p |")
     return ([f"| outcome (runs) | {a} | {b} | discordant: {a} only / {b} only | McNemar p |", "|---|---|---|---|---|",

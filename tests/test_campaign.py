@@ -71,7 +71,11 @@ def test_save_writes_exactly_the_cli_files(in_memory, cli_run, tmp_path):
     saved = {p.relative_to(tmp_path / "s") for p in second.save(tmp_path / "s")}
     assert saved == {p.relative_to(cli_run) for p in cli_run.rglob("*") if p.is_file() and p.name != io.LOCK_NAME}
     for name in ("summary.parquet", "gaps.parquet", "confusion.parquet"):
-        pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "s" / name), pd.read_parquet(cli_run / name))
+        a, b = pd.read_parquet(tmp_path / "s" / name), pd.read_parquet(cli_run / name)
+        if name == "gaps.parquet":  # the replay commands name each campaign's own folder
+            for column in ("tau_f_replay", "tau_d_replay"):
+                a[column] = a[column].str.replace(str(tmp_path / "s"), str(cli_run), regex=False)
+        pd.testing.assert_frame_equal(a, b)
     fig = second.plot("rates_by_manoeuvre")
     assert fig.axes and fig.axes[0].has_data()
     with pytest.raises(ValueError, match="plot"):

@@ -87,6 +87,14 @@ def test_two_local_workers_give_the_in_process_table(local, reference):
     assert len(result.workers) == 2 and (result.workers["scenario_steps_per_s"] > 0).all()
 
 
+@pytest.mark.filterwarnings("ignore:The balance properties of Sobol")
+def test_a_campaign_run_on_dask_workers_replays_its_rows_bit_for_bit(local, tmp_path):
+    mcfdd.run_campaign(CFG, out=tmp_path, progress=False, executor=local)
+    result = mcfdd.replay(tmp_path, [383, 0, 200], progress=False)  # three chunks of 128
+    assert result.differences() == []
+    pd.testing.assert_frame_equal(result.rows, result.outcomes[list(result.rows.columns)], check_exact=True)
+
+
 def test_local_workers_get_their_share_of_the_cores(local):
     def devices():
         import jax  # on the worker: the function is sent to it, the test module's names are not

@@ -2,6 +2,7 @@
 
 import concurrent.futures
 import math
+import shlex
 from pathlib import Path
 
 import jax
@@ -328,6 +329,26 @@ def test_campaign_summary_says_what_drives_its_false_alarms(one_driver, tmp_path
     section = summary.split("## What drives the false alarms and misses")[1]
     assert f"- false alarm ({len(alarms)} of 256 runs): kci_scale D" in section
     assert f"scenario {witnesses['scenario_id'].iloc[0]} (loe_ratio0_max_pre" in section
+
+
+def test_the_report_replays_the_witnesses_of_the_design_runs(one_driver):
+    """The witnesses are runs of the pick-freeze design (not of the config's own design): the replay command of
+    report.md rebuilds them from the design runs' folder with the outcome columns bit for bit."""
+    _, result, out = one_driver
+    line = next(s for s in (out / "report.md").read_text().splitlines() if s.startswith("- Replay the witnesses"))
+    command = shlex.split(line.split("`")[1])
+    ids = [int(i) for i in command[4].split(",")]
+    assert command[2] == str(out) and ids == list(dict.fromkeys(result.witnesses["scenario_id"]))
+    replayed = mcfdd.replay(command[2], ids, progress=False)
+    assert replayed.differences() == []
+    frame = replayed.to_pandas()  # the histories are the same runs: detection begins at the campaign's alarm time
+    alarms = replayed.rows[replayed.rows["false_alarm"]]
+    assert len(alarms)
+    for _, row in alarms.iterrows():
+        g = frame[(frame["run"] == f"scenario-{row['scenario_id']}") & (frame["t_s"] >= 0.5)]
+        assert abs(g.loc[g["fault_detected"], "t_s"].iloc[0] - row["false_alarm_time_s"]) < 1e-4
+    assert replayed.rows["kci_scale"].tolist() == result.runs.scenarios.set_index("scenario_id").loc[ids,
+                                                                                                  "kci_scale"].tolist()
 
 
 @pytest.mark.parametrize("changes, message", [

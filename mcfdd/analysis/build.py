@@ -160,6 +160,10 @@ class DesignPlan:
     kinds: tuple
     keys: np.ndarray | None = None
 
+    def key_index(self, ids):
+        """The random-key index of scenario ids (a run's key is ``fold_in(key(seed), index)``)."""
+        return ids if self.keys is None else self.keys[ids]
+
 
 def design_plan(cfg: config.CampaignConfig, whole: np.ndarray | None = None, keys=None) -> DesignPlan:
     """The :class:`DesignPlan` of a campaign (builds the whole design once, then keeps only the plan).

@@ -38,7 +38,8 @@ def to_dict(obj) -> dict:
 
 
 def to_json(obj) -> str:
-    return json.dumps(to_dict(obj), sort_keys=True, default=str)
+    """The resolved configuration as JSON, in its own order (the order of [space]'s axes is part of a design)."""
+    return json.dumps(to_dict(obj), default=str)
 
 
 def load_toml(path) -> dict:

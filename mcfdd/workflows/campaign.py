@@ -35,6 +35,7 @@ from mcfdd.workflows.common import (
     dtype_of,
     load_bank,
     precision,
+    replay_command,
     save_figure,
 )
 
@@ -183,7 +184,7 @@ def _chunk(setup: CampaignSetup, seed: int, ids, size: int):
     nearest, accept = scenarios.true_model(setup.nu_bank, kind, np.asarray(cols.get("fault_size", np.zeros(size))))
     onset = scenarios.fault_onsets(cols, size)
     truth = scoring.Truth(onset.astype(setup.dtype), accept, nearest)
-    keys = simulate.run_keys(seed, padded if setup.plan.keys is None else setup.plan.keys[padded])
+    keys = simulate.run_keys(seed, setup.plan.key_index(padded))
     return cols, scenarios.to_scenario(cols, setup.dtype), truth, onset, nearest, keys
 
 
@@ -253,7 +254,8 @@ class CampaignResult:
             identification and stall rates, with Clopper-Pearson 95 % intervals, overall and per stratum
             (columns ``stratum`` and ``label``; :data:`mcfdd.report.FALSE_ALARM_COLUMNS`).
         confusion: true nearest model (rows) against decided model (columns), counts.
-        gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector.
+        gaps: tau_f (eq. 26), tau_d (eq. 27) and the detection gap per detector, with the scenario of each
+            (in ``gaps.parquet`` also the command replaying it: ``tau_f_replay``, ``tau_d_replay``).
         detectability: FAR and MDR per fault class, dynamic-pressure bin and peak-load-fraction
             bin, each cell marked separable under the campaign's uncertainty or not.
         meta: provenance (resolved config JSON, seed, version, git revision, model names).
@@ -264,10 +266,10 @@ class CampaignResult:
     """
 
     def __init__(self, cfg: config.CampaignConfig, scenarios, parts: np.ndarray, models, meta: dict,
-                 simulated: int, workers=None):
+                 simulated: int, workers=None, plan: build.DesignPlan | None = None):
         self.config, self.scenarios, self.models, self.meta, self.simulated = cfg, scenarios, tuple(models), meta, \
             simulated
-        self._parts = parts
+        self._parts, self._plan = parts, plan
         self.workers = workers
         deg_per_m = DEG_PER_RAD / cfg.plant.actuator.r_arm_m
         self.summary = report.summary(scenarios, scored_seconds(cfg))
@@ -287,6 +289,13 @@ class CampaignResult:
                                                    self.config.campaign.seed if s.seed is None else s.seed),
                              tables.witnesses(self.scenarios))
         return self._drivers
+
+    def replay(self, ids, progress: bool = True):
+        """Scenarios ``ids`` of this campaign simulated again, with time histories: a
+        :class:`mcfdd.workflows.replay.ReplayResult` (:func:`mcfdd.replay` of its folder)."""
+        from mcfdd.workflows import replay  # deferred: the campaign does not need it
+
+        return replay.replay_rows(self.config, self.scenarios, ids, self._plan, progress)
 
     def overall(self) -> dict:
         """The overall row of :attr:`summary` as a dict (runs, fault_free_runs, far_loe, far_any, mdr, ...)."""
@@ -396,13 +405,19 @@ class CampaignResult:
                                           out / "scenarios" / folder.part_name(int(ids[rows][0])), self.meta))
         written.append(io.write_table(self.summary, out / "summary.parquet", self.meta))
         written.append(io.write_table(self.confusion.reset_index(), out / "confusion.parquet", self.meta))
-        written.append(io.write_table(self.gaps, out / "gaps.parquet", self.meta))
+        witnesses = {b: self.gaps[f"{b}_scenario_id"].to_numpy() for b in ("tau_f", "tau_d")}  # -1: none
+        written.append(io.write_table(self.gaps.assign(**{f"{b}_replay": [replay_command(out, [i] if i >= 0 else [])
+                                                                           for i in w] for b, w in witnesses.items()}),
+                                      out / "gaps.parquet", self.meta))
         written.append(io.write_table(self.detectability, out / "detectability.parquet", self.meta))
+        ids = pd.unique(np.concatenate(list(witnesses.values())))
         written.append(io.write_text(out / "summary.md", report.markdown(title, self.summary, self.confusion,
-                                                                         self.gaps, self.meta)
+                                                                         self.gaps, self.meta,
+                                                                         replay_command(out, ids[ids >= 0]))
                                      + report.detectability_markdown(self.detectability, self.scenarios)
                                      + report.stall_scoring_markdown(self.scenarios)
-                                     + report.drivers_markdown(*self.drivers())
+                                     + report.drivers_markdown(*self.drivers(), replay=replay_command(
+                                         out, self.drivers()[1]["scenario_id"].drop_duplicates()))
                                      + report.figures_markdown(drawn, left_out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
@@ -575,7 +590,7 @@ def _run_campaign(setup, out, size, resume, progress, executor, on_chunk, title,
     table = pd.concat(frames, ignore_index=True)
     order = np.argsort(table["scenario_id"].to_numpy(), kind="stable")
     result = CampaignResult(cfg, table.iloc[order].reset_index(drop=True), np.concatenate(labels)[order], names, meta,
-                            len(todo), worker_table(records, c.n_steps))
+                            len(todo), worker_table(records, c.n_steps), setup.plan)
     if out is not None:
         with folder.writing(out, "every scenario part is written; make room and continue with --resume"):
             result._write(out, title)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shlex
 from pathlib import Path
 
 import jax
@@ -88,6 +89,13 @@ def compile_cache(folder=None) -> Path | None:
         jax.config.update("jax_compilation_cache_dir", wanted[0])
         jax.config.update("jax_enable_compilation_cache", wanted[1])
     return path
+
+
+def replay_command(folder, ids) -> str:
+    """The command replaying scenarios ``ids`` of the campaign in ``folder`` (:mod:`mcfdd.workflows.replay`), e.g.
+    ``mcfdd replay results/x --scenarios 481,3524``; '' without ids."""
+    ids = ",".join(str(int(i)) for i in ids)
+    return f"mcfdd replay {shlex.quote(str(folder))} --scenarios {ids}" if ids else ''
 
 
 def save_figure(fig, path: Path) -> Path:

@@ -29,7 +29,9 @@ def resolved(cfg: config.CampaignConfig) -> dict:
 
 
 def state_text(cfg: config.CampaignConfig) -> str:
-    return json.dumps(resolved(cfg), indent=1, sort_keys=True)
+    """campaign.json: the resolved config in its own order (the order of [space]'s axes orders the design's
+    columns, so the scenarios are rebuilt from this file alone, :mod:`mcfdd.workflows.replay`)."""
+    return json.dumps(resolved(cfg), indent=1)
 
 
 @contextlib.contextmanager

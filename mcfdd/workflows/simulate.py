@@ -82,12 +82,14 @@ def histories(sim: config.SimulationConfig, plant_cfg: config.PlantConfig, fdd_c
     for i in range(len(names)):
         columns[f"r_{i}"] = fdd.r[..., i]
         columns[f"theta_{i}"] = fdd.theta[..., i]
+        columns[f"ratio_{i}"] = fdd.ratio[..., i]
         columns[f"iota_{i}"] = fdd.iota[..., i]
     eta = fdd.eta_signal if fdd_cfg.stall.identification == "signal" else fdd.eta_model
     columns.update({
         "theta_u": fdd.theta_u, "load_fraction": fdd.load_fraction, "excited": fdd.excited,
         "decoded_model": fdd.decoded, "detected_model": fdd.detected, "fault_detected": fdd.fault_detected,
-        "r_stall": fdd.r_stall,
+        "detection_margin": fdd.detection_margin, "eta_signal_margin": fdd.eta_signal_margin,
+        "eta_model_margin": fdd.eta_model_margin, "r_stall": fdd.r_stall,
         "r_stall_deg": deg(fdd.r_stall), "theta_stall": fdd.theta_stall, "theta_stall_deg": deg(fdd.theta_stall),
         "iota_stall": fdd.iota_stall,
         "eta_stall": eta, "eta_signal": fdd.eta_signal, "eta_model": fdd.eta_model, "theta_sl": fdd.theta_sl,
@@ -127,7 +129,8 @@ class Histories:
 
     def to_pandas(self):
         """Tidy table, one row per (run, sample): ``run``, ``t_s`` and one column per signal (units in the names;
-        per filter i ``r_i``, ``theta_i``, ``iota_i``)."""
+        per filter i ``r_i``, ``theta_i``, ``iota_i`` and ``ratio_i`` = theta_i / ||u|| (decisions are made only where
+        ``excited``); the signed margins of detection and of eta per method, positive where the decision is set)."""
         return self._frame
 
     def summary(self):

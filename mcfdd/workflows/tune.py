@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from mcfdd import config, io, report
+from mcfdd import config, io, search_report
 from mcfdd.analysis import batch, build, scenarios, scoring, simulate, tuning
 from mcfdd.progress import bar, note
 from mcfdd.workflows.campaign import run_campaign, scored_seconds
@@ -116,7 +116,7 @@ class TuneResult:
 def held_out(cfg: config.TuneConfig, tuned: config.FddConfig, deg_per_m: float, progress: bool):
     """The held-out campaign with the configured FDD ('before') and ``tuned`` ('after'), one compilation.
 
-    Returns (campaigns by label, XLA compilations by label, seconds, :func:`mcfdd.report.validation_table`).
+    Returns (campaigns by label, XLA compilations by label, seconds, :func:`mcfdd.search_report.validation_table`).
     """
     campaigns, compiles = {}, {}
     start = time.perf_counter()
@@ -126,7 +126,7 @@ def held_out(cfg: config.TuneConfig, tuned: config.FddConfig, deg_per_m: float, 
             campaigns[label] = run_campaign(cfg.campaign("validation", fdd_cfg), progress=progress)
         compiles[label] = counter.count
     seconds = time.perf_counter() - start
-    validation = report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
+    validation = search_report.validation_table({k: v.scenarios for k, v in campaigns.items()}, deg_per_m,
                                          cfg.fdd.stall.identification, scored_seconds(campaigns["before"].config))
     return campaigns, compiles, seconds, validation
 
@@ -246,6 +246,6 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
              f"counted by JAX's monitoring events during each run: {compiles['before']}, {compiles['after']}). "
              f"Bounds as in the campaign report (eqs. 26-27)."]
     title = f"Tuning {Path(source).stem}" if source is not None else "Tuning"
-    text = report.tuning_markdown(title, det, history, best, {k: before[k] * scale for k in ("tau_f", "tau_d")},
+    text = search_report.tuning_markdown(title, det, history, best, {k: before[k] * scale for k in ("tau_f", "tau_d")},
                                   parameters, validation, notes, meta, scan)
     return TuneResult(det, tuned, history, parameters, validation, scan, campaigns, compiles, text, units, meta, source)

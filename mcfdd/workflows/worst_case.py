@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mcfdd import config, io, report
+from mcfdd import config, io, search_report
 from mcfdd.analysis import build, worst_case as wc
 from mcfdd.progress import bar, note
 from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision, save_figure
@@ -90,7 +90,7 @@ class WorstCaseResult:
                               f"of worst_case.parquet; each with the witness's scenario and run key)."]
         return [io.write_table(self.points, out / "worst_case.parquet", self.meta),
                 io.write_table(self.summary, out / "summary.parquet", self.meta),
-                io.write_text(out / "report.md", report.worst_case_markdown(title, self.summary, self.points,
+                io.write_text(out / "report.md", search_report.worst_case_markdown(title, self.summary, self.points,
                                                                             self.value, self.bound, parameters,
                                                                             notes, self.meta)),
                 save_figure(self.plot(), out / "history.png"),
@@ -183,7 +183,7 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
          f"{times['monte_carlo'] + times.get('monte_carlo_extra', 0.0):.1f} s", progress)
     df = pd.concat(frames, ignore_index=True)
     meta = io.provenance(config.to_json(cfg), sim.seed, models=list(names))
-    summ = report.search_summary(df, value, s.bound, times)
+    summ = search_report.search_summary(df, value, s.bound, times)
     feasible = int(np.isfinite(screened.hard).sum())
     notes = [f"Worst case of the {what} over the config's scenario space: {s.screening} Sobol points "
              f"screened, the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
@@ -196,7 +196,7 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
              f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
              f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
              f"Values in {UNITS[s.detector]}.",
-             report.search_verdict(summ, value, s.bound, restarted, len(pool.index) - used)]
+             search_report.search_verdict(summ, value, s.bound, restarted, len(pool.index) - used)]
     label = f"{'tau_f' if s.bound == 'free' else 'tau_d'} candidates, {s.detector} detector ({value})"
     base = {"simulation": config.to_dict(sim), "plant": config.to_dict(cfg.plant), "fdd": config.to_dict(cfg.fdd)}
     return WorstCaseResult(df, summ, value, s.bound, label, notes, meta, base)

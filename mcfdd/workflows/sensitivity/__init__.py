@@ -23,7 +23,7 @@ import numpy as np
 from mcfdd import config, io, report
 from mcfdd.progress import note
 from mcfdd.workflows import campaign as campaign_wf
-from mcfdd.workflows.common import OutputFolderError, as_config, check_folder, precision, save_figure
+from mcfdd.workflows.common import OutputFolderError, as_config, check_folder, precision, replay_command, save_figure
 from mcfdd.workflows.sensitivity import tables
 from mcfdd.workflows.sensitivity.study import NOISE, OUTCOMES, Design, design, outcome_names
 
@@ -107,7 +107,7 @@ class SensitivityResult:
         written = [io.write_table(getattr(self, name), out / f"{name}.parquet", self.meta)
                    for name in ("indices", "screen", "regional", "witnesses")]
         drawn = [name for name in PLOTS if name not in self.left_out()]
-        written.append(io.write_text(out / "report.md", markdown(self, drawn)))
+        written.append(io.write_text(out / "report.md", markdown(self, drawn, out)))
         written.extend(save_figure(self.plot(name), out / f"{name}.png") for name in drawn)
         return written
 
@@ -163,8 +163,8 @@ def _ci(value, lo, hi, digits: int = 2) -> str:
     return f"{value:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]" if np.isfinite(lo) else f"{value:.{digits}f}"
 
 
-def markdown(result: SensitivityResult, drawn) -> str:
-    """report.md of a sensitivity analysis."""
+def markdown(result: SensitivityResult, drawn, folder=None) -> str:
+    """report.md of a sensitivity analysis (in ``folder``: named in the witnesses' replay command)."""
     d, s = result.design, result.design.config.sensitivity
     meta = result.meta
     level = f"{100 * s.confidence:g} %"
@@ -197,7 +197,9 @@ def markdown(result: SensitivityResult, drawn) -> str:
                   for _, g in result.screen.groupby(["outcome", "stratum"], sort=False)
                   for r in g.head(TOP).itertuples()]
         lines.append("")
-    lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs")]
+    ids = result.witnesses["scenario_id"].drop_duplicates() if folder is not None else ()
+    lines += [report.drivers_markdown(result.regional, result.witnesses, "the design's A and B runs",
+                                      replay=replay_command(folder, ids))]
     if result.notes:
         lines += ["## Notes", ""] + [f"- {n}." for n in result.notes] + [""]
     lines += ["## Figures", ""] + [f"- `{name}.png`: {PLOTS[name]}" for name in drawn]
