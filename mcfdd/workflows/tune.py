@@ -131,6 +131,19 @@ def held_out(cfg: config.TuneConfig, tuned: config.FddConfig, deg_per_m: float, 
     return campaigns, compiles, seconds, validation
 
 
+def ascend(gap_and_grad, theta0, ts, progress: bool, postfix) -> tuple[tuning.Result, float]:
+    """:func:`mcfdd.analysis.tuning.tune` of ``gap_and_grad`` from ``theta0`` with the config's iterations and
+    learning rate, under a progress bar whose postfix is ``postfix(bounds)``. Returns (result, seconds)."""
+    start = time.perf_counter()
+    with bar(ts.iterations + 1, "tuning evaluations", progress) as shown:
+        def callback(i, gap, b):
+            shown.set_postfix_str(postfix(b), refresh=False)
+            shown.update(1)
+
+        result = tuning.tune(gap_and_grad, theta0, ts.iterations, ts.learning_rate, callback)
+    return result, time.perf_counter() - start
+
+
 def tune(cfg, progress: bool = True) -> TuneResult:
     """Tune one detector's evaluator (alpha, beta, gamma), pole and threshold by gradient.
 
@@ -190,15 +203,9 @@ def _tune(cfg: config.TuneConfig, source, progress: bool) -> TuneResult:
     def gap_and_grad(theta):
         return tuning.gap_and_grad(theta, fdd_params, settings, data, ts.temperature, tr.dt_s, det, ts.tune_pole)
 
-    start = time.perf_counter()
-    with bar(ts.iterations + 1, "tuning evaluations", progress) as shown:
-        def callback(i, gap, b):
-            shown.set_postfix_str(f"tau_f {b['tau_f'] * scale:.4g}, tau_d {b['tau_d'] * scale:.4g} {units}, "
-                                  f"normalised gap {tuning.normalised_gap(b['tau_f'], b['tau_d']):.4g}", refresh=False)
-            shown.update(1)
-
-        result = tuning.tune(gap_and_grad, tuning.initial(fdd_params, det), ts.iterations, ts.learning_rate, callback)
-    t_tune = time.perf_counter() - start
+    result, t_tune = ascend(gap_and_grad, tuning.initial(fdd_params, det), ts, progress, lambda b: (
+        f"tau_f {b['tau_f'] * scale:.4g}, tau_d {b['tau_d'] * scale:.4g} {units}, "
+        f"normalised gap {tuning.normalised_gap(b['tau_f'], b['tau_d']):.4g}"))
     best = tuning.best_iterate(result)
     chosen = tuning.natural(result.thetas[best])
     tau_f, tau_d = result.bounds[best]["tau_f"], result.bounds[best]["tau_d"]

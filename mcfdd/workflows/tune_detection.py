@@ -19,11 +19,11 @@ import numpy as np
 import pandas as pd
 
 from mcfdd import config, io
-from mcfdd.analysis import build, detection_tuning as dt, metrics, tuning
-from mcfdd.progress import bar, note
+from mcfdd.analysis import build, detection_tuning as dt, metrics
+from mcfdd.progress import note
 from mcfdd.workflows.common import dtype_of, load_bank
 from mcfdd.workflows.compare import compare
-from mcfdd.workflows.tune import TuneResult, held_out, training_set
+from mcfdd.workflows.tune import TuneResult, ascend, held_out, training_set
 
 COUNTS = ("false_alarms", "missed", "detection_time_s")
 
@@ -87,15 +87,9 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
     def gap_and_grad(theta):
         return dt.gap_and_grad(theta, fdd_params, settings, data, must, ts.temperature, tr.dt_s)
 
-    start = time.perf_counter()
-    with bar(ts.iterations + 1, "tuning evaluations", progress) as shown:
-        def callback(i, gap, b):
-            shown.set_postfix_str(f"tau_f {b['tau_f']:.4g}, tau_d {b['tau_d']:.4g}, false alarms "
-                                  f"{b['false_alarms']:.0f}, missed {b['missed']:.0f}", refresh=False)
-            shown.update(1)
-
-        result = tuning.tune(gap_and_grad, theta0, ts.iterations, ts.learning_rate, callback)
-    t_tune = time.perf_counter() - start
+    result, t_tune = ascend(gap_and_grad, theta0, ts, progress, lambda b: (
+        f"tau_f {b['tau_f']:.4g}, tau_d {b['tau_d']:.4g}, false alarms {b['false_alarms']:.0f}, "
+        f"missed {b['missed']:.0f}"))
     best = dt.best_iterate(result)
     theta = result.thetas[best]
     b = result.bounds[best]
