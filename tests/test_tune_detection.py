@@ -10,11 +10,13 @@ smooth tau_d <= tau_d + T log steps.
 """
 
 import math
+import tomllib
 from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
+import tomli_w
 
 from mcfdd import cli, config
 from mcfdd.analysis import build, detection_tuning as dt, metrics
@@ -204,14 +206,50 @@ def test_detection_tuning_end_to_end(tmp_path):
     assert fragment == result.fdd
 
 
-def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs():
-    root = Path(__file__).resolve().parents[1] / "configs"
-    cfg = config.load(config.TuneConfig, root / "tune_validation.toml")
-    shipped = config.load(config.CampaignConfig, root / "validation.toml")
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.mark.parametrize("tune_name, shipped_name", [("tune_validation", "validation"),
+                                                     ("tune_default", "loe_campaign")])
+def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, shipped_name):
+    cfg = config.load(config.TuneConfig, CONFIGS / f"{tune_name}.toml")
+    shipped = config.load(config.CampaignConfig, CONFIGS / f"{shipped_name}.toml")
     assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
     cells = len(cfg.values("fault_kind"))
     assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
     assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation
+    assert shipped.campaign.seed not in (cfg.training.seed, cfg.validation.seed)
+
+
+def documented_default_fdd() -> dict:
+    """The [fdd.loe] result written in tune_default.toml's comment (the lines after '# Result')."""
+    lines = (CONFIGS / "tune_default.toml").read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("# Result"))
+    body = []
+    for line in lines[start + 1:]:
+        if not line.startswith("#   "):
+            break
+        body.append(line[4:])
+    return tomllib.loads("\n".join(body))
+
+
+def test_a_config_without_fdd_builds_the_fdd_tune_default_produced(tmp_path):
+    """loe_campaign.toml has no [fdd]: its LOE bank is built from the defaults, which are the result of
+    `mcfdd tune configs/tune_default.toml` as its comment writes it (every tuned number and option), and
+    differ from the start the tuner began with (the start is written out in tune_default.toml)."""
+    documented = documented_default_fdd()
+    assert set(documented) >= {"load_gate", "pole_1_s", "evaluator", "detection_tau", "detection_contrast",
+                               "excitation_floor_deg", "excitation_noise_factor"}
+    campaign = config.load(config.CampaignConfig, CONFIGS / "loe_campaign.toml")
+    (tmp_path / "fdd.toml").write_text(tomli_w.dumps({"fdd": {"loe": documented}}))
+    written = config.load_fdd_fragment(tmp_path / "fdd.toml")
+    assert campaign.fdd == config.FddConfig() == written
+    start = config.load(config.TuneConfig, CONFIGS / "tune_default.toml").fdd
+    assert start != campaign.fdd
+    bank, _ = load_bank(campaign.fdd, np.float64)
+    built, expected = (build.fdd_params(f, bank, 0.0525).loe for f in (campaign.fdd, written))
+    for a, b in zip(jax.tree_util.tree_leaves(built), jax.tree_util.tree_leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_settings_turned_off_stay_off():
