@@ -10,11 +10,13 @@ smooth tau_d <= tau_d + T log steps.
 """
 
 import math
+import tomllib
 from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
+import tomli_w
 
 from mcfdd import cli, config
 from mcfdd.analysis import build, detection_tuning as dt, metrics
@@ -204,25 +206,44 @@ def test_detection_tuning_end_to_end(tmp_path):
     assert fragment == result.fdd
 
 
-def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs():
-    root = Path(__file__).resolve().parents[1] / "configs"
-    cfg = config.load(config.TuneConfig, root / "tune_validation.toml")
-    shipped = config.load(config.CampaignConfig, root / "validation.toml")
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.mark.parametrize("tune_name, shipped_name", [("tune_validation", "validation"),
+                                                     ("tune_default", "loe_campaign")])
+def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, shipped_name):
+    cfg = config.load(config.TuneConfig, CONFIGS / f"{tune_name}.toml")
+    shipped = config.load(config.CampaignConfig, CONFIGS / f"{shipped_name}.toml")
     assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
     cells = len(cfg.values("fault_kind"))
     assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
     assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation
+    assert shipped.campaign.seed not in (cfg.training.seed, cfg.validation.seed)
 
 
-def test_settings_turned_off_stay_off():
-    fdd = config.replace(config.FddConfig(), {"loe.detection_contrast": 0.0, "loe.excitation_floor_deg": 0.0,
-                                              "loe.excitation_noise_factor": 2.0, "loe.detection_confirm_s": 0.0})
-    bank, _ = load_bank(fdd, np.float64)
-    params = build.fdd_params(fdd, bank, 0.1)
-    tuned = dt.names(params.loe, False, True)
-    assert tuned == ("alpha", "beta", "gamma_1_s", "detection_tau", "excitation_noise_factor")
-    theta = dt.initial(params, tuned)
-    assert float(np.exp(theta["alpha"])) == pytest.approx(1e-3 * fdd.loe.evaluator.beta)
-    back = dt.apply(params, theta, 2.0).loe
-    assert back.detection_contrast == 0.0 and back.excitation_floor == 0.0 and back.detection_confirm_s == 0.0
-    assert float(back.detection_tau) == pytest.approx(2.0 * fdd.loe.detection_tau)
+def documented_default_fdd() -> dict:
+    """The [fdd.loe] defaults written in tune_default.toml's comment (the indented lines after '# Result')."""
+    lines = (CONFIGS / "tune_default.toml").read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("# Result"))
+    body = [line[4:] for line in lines[start + 1:] if line.startswith("#   ")]
+    return tomllib.loads("\n".join(body))
+
+
+def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path):
+    """loe_campaign.toml has no [fdd]: its LOE bank is built from the defaults, which are the FDD that
+    `mcfdd tune configs/tune_default.toml`'s held-out verdict kept, as its comment writes it (every
+    detection-level number and option); the tuner's start, written out in tune_default.toml, is another."""
+    documented = documented_default_fdd()
+    assert set(documented) >= {"load_gate", "pole_1_s", "evaluator", "detection_tau", "detection_contrast",
+                               "excitation_floor_deg", "excitation_noise_factor", "detection_confirm_s"}
+    campaign = config.load(config.CampaignConfig, CONFIGS / "loe_campaign.toml")
+    (tmp_path / "fdd.toml").write_text(tomli_w.dumps({"fdd": {"loe": documented}}))
+    written = config.load_fdd_fragment(tmp_path / "fdd.toml")
+    assert campaign.fdd == config.FddConfig() == written
+    start = config.load(config.TuneConfig, CONFIGS / "tune_default.toml").fdd
+    assert start != campaign.fdd
+    bank, _ = load_bank(campaign.fdd, np.float64)
+    r_arm = build.plant_model(campaign.plant).actuator.r_arm_m
+    built, expected = (build.fdd_params(f, bank, r_arm).loe for f in (campaign.fdd, written))
+    for a, b in zip(jax.tree_util.tree_leaves(built), jax.tree_util.tree_leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
