@@ -204,14 +204,18 @@ def test_detection_tuning_end_to_end(tmp_path):
     assert fragment == result.fdd
 
 
-def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs():
+@pytest.mark.parametrize("tune_name, campaign_name", [("tune_validation", "validation"),
+                                                      ("tune_validation_rcam", "validation_rcam")])
+def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, campaign_name):
     root = Path(__file__).resolve().parents[1] / "configs"
-    cfg = config.load(config.TuneConfig, root / "tune_validation.toml")
-    shipped = config.load(config.CampaignConfig, root / "validation.toml")
+    cfg = config.load(config.TuneConfig, root / f"{tune_name}.toml")
+    shipped = config.load(config.CampaignConfig, root / f"{campaign_name}.toml")
     assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
     cells = len(cfg.values("fault_kind"))
     assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
-    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation
+    # the tuning and its held-out campaign are of the shipped campaign's space, aircraft and scoring
+    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation and cfg.plant == shipped.plant
+    assert cfg.validation.duration_s == shipped.campaign.duration_s
 
 
 def test_settings_turned_off_stay_off():
