@@ -210,15 +210,32 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 @pytest.mark.parametrize("tune_name, shipped_name", [("tune_validation", "validation"),
-                                                     ("tune_default", "loe_campaign")])
+                                                     ("tune_default", "loe_campaign"),
+                                                     ("tune_validation_rcam", "validation_rcam")])
 def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, shipped_name):
     cfg = config.load(config.TuneConfig, CONFIGS / f"{tune_name}.toml")
     shipped = config.load(config.CampaignConfig, CONFIGS / f"{shipped_name}.toml")
     assert cfg.tune.level == "detection" and cfg.validation.seed != cfg.training.seed
     cells = len(cfg.values("fault_kind"))
     assert cfg.validation.scenarios // cells >= 3072 and cfg.training.scenarios <= 4096
-    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation
+    # the tuning and its held-out campaign are of the shipped campaign's space, aircraft and scoring
+    assert cfg.space == shipped.space and cfg.evaluation == shipped.evaluation and cfg.plant == shipped.plant
+    assert cfg.validation.duration_s == shipped.campaign.duration_s
     assert shipped.campaign.seed not in (cfg.training.seed, cfg.validation.seed)
+
+
+def test_settings_turned_off_stay_off():
+    fdd = config.replace(config.FddConfig(), {"loe.detection_contrast": 0.0, "loe.excitation_floor_deg": 0.0,
+                                              "loe.excitation_noise_factor": 2.0, "loe.detection_confirm_s": 0.0})
+    bank, _ = load_bank(fdd, np.float64)
+    params = build.fdd_params(fdd, bank, 0.1)
+    tuned = dt.names(params.loe, False, True)
+    assert tuned == ("alpha", "beta", "gamma_1_s", "detection_tau", "excitation_noise_factor")
+    theta = dt.initial(params, tuned)
+    assert float(np.exp(theta["alpha"])) == pytest.approx(1e-3 * fdd.loe.evaluator.beta)
+    back = dt.apply(params, theta, 2.0).loe
+    assert back.detection_contrast == 0.0 and back.excitation_floor == 0.0 and back.detection_confirm_s == 0.0
+    assert float(back.detection_tau) == pytest.approx(2.0 * fdd.loe.detection_tau)
 
 
 def documented_default_fdd() -> dict:
