@@ -125,6 +125,7 @@ def init(zero) -> LawState:
 
 def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s, one):
     """``offset + kp (e + ki integral e)`` limited to [lo, hi]; returns (new integrator, output)."""
+    error = once(error, one)  # read by the output, the anti-windup test and the integrator
     raw = once(offset + kp * (error + ki * integrator), one)
     push = kp * error
     winding = ((raw > hi) & (push > 0)) | ((raw < lo) & (push < 0))

@@ -61,10 +61,14 @@ def build_table(surface: HingeSurface, r_arm_m, alpha_of_qbar, vcas_m_s, altitud
     return HingeTable(*jax.device_put((*grids, load)))
 
 
+def _position(grid, value):
+    """Position of ``value`` on a uniform grid in cells from its first node, clamped to the grid."""
+    return jnp.clip((value - grid[0]) / (grid[1] - grid[0]), 0.0, grid.shape[0] - 1.0)
+
+
 def _cell(grid, value):
     """Lower cell index and weight of ``value`` on a uniform grid, clamped to the grid."""
-    step = grid[1] - grid[0]
-    pos = jnp.clip((value - grid[0]) / step, 0.0, grid.shape[0] - 1.0)
+    pos = _position(grid, value)
     idx = jnp.minimum(jnp.floor(pos).astype(jnp.int32), grid.shape[0] - 2)
     return idx, pos - idx.astype(pos.dtype)
 
@@ -102,11 +106,14 @@ def point_line(table: HingeTable, vcas_m_s, altitude_m, delta_rad, one=1.0):
     around the point (one slice read) instead of the whole delta slice; the cells are computed
     once (``one``: :func:`mcfdd.compute.once`). Returns (load N, slope N/rad).
     """
-    i, wv, j, wh, k, wd = once((*_cell(table.vcas_m_s, vcas_m_s), *_cell(table.altitude_m, altitude_m),
-                                *_cell(table.delta_rad, delta_rad)), one)
-    block = jax.lax.dynamic_slice(table.load_n, (i, j, k), (2, 2, 2))
+    grids = (table.vcas_m_s, table.altitude_m, table.delta_rad)
+    positions = once(tuple(_position(g, x) for g, x in zip(grids, (vcas_m_s, altitude_m, delta_rad))), one)
+    # the lower node as a float (exact), so the index and the weight read the stored position only
+    nodes = [jnp.minimum(jnp.floor(pos), g.shape[0] - 2.0) for pos, g in zip(positions, grids)]
+    wv, wh, wd = once(tuple(pos - node for pos, node in zip(positions, nodes)), one)
+    block = jax.lax.dynamic_slice(table.load_n, tuple(node.astype(jnp.int32) for node in nodes), (2, 2, 2))
     by_h = block[:, 0] * (1.0 - wh) + block[:, 1] * wh
-    lo, hi = by_h[0] * (1.0 - wv) + by_h[1] * wv
+    lo, hi = once(tuple(by_h[0] * (1.0 - wv) + by_h[1] * wv), one)  # read by the load and the slope
     return lo + (hi - lo) * wd, (hi - lo) / (table.delta_rad[1] - table.delta_rad[0])
 
 

@@ -170,39 +170,37 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     body = body_constants(params) if body is None else body
     s, c, lt = params.wing_area_m2, params.mean_chord_m, params.tail_arm_m
     tail = params.tail_area_m2 / s
+    dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
+    # terms of the controls and the density alone: the same in every Runge-Kutta stage, computed once per step
+    t1, t2 = controls.throttle1 * body.thrust_per_mass, controls.throttle2 * body.thrust_per_mass
+    pressure_m, incidence_0, side_0, roll_0, yaw_0, thrust, thrust_m, thrust_n = once((
+        (0.5 * s) * density_kg_m3 * body.inv_mass,  # dynamic pressure times S per unit mass, over V^2
+        controls.stabiliser + params.downwash_slope * params.alpha_l0_rad, 0.24 * controls.rudder,
+        0.22 * controls.rudder - 0.6 * controls.aileron, -0.63 * controls.rudder,
+        t1 + t2, (params.z_cg_m - params.engine_z_m) * (t1 + t2), params.engine_y_m * (t1 - t2)), one)
+
     air = air_data(state, gust)
     alpha, beta, speed = air.alpha, air.beta, air.airspeed
-    qs_m = (0.5 * s) * density_kg_m3 * body.inv_mass * speed**2  # dynamic pressure times S, per unit mass
+    qs_m = pressure_m * speed**2  # dynamic pressure times S, per unit mass
     chord_v = c / speed
     ca, sa = jnp.cos(alpha), jnp.sin(alpha)
     alpha, beta, speed, qs_m, chord_v, ca, sa = once((alpha, beta, speed, qs_m, chord_v, ca, sa), one)
     p_air, q_air, r_air = once((state.p - gust.p, state.q - gust.q, state.r - gust.r), one)
 
-    tail_incidence = (controls.stabiliser + params.downwash_slope * params.alpha_l0_rad
-                      + (1.0 - params.downwash_slope) * alpha)  # alpha - eps + delta_t
+    tail_incidence = incidence_0 + (1.0 - params.downwash_slope) * alpha  # alpha - eps + delta_t
     cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + 1.3 * q_air * lt / speed)
     cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
     cl, cd, tail_incidence = once((cl, cd, tail_incidence), one)
-    cy = -1.6 * beta + 0.24 * controls.rudder
-    ax = qs_m * (cl * sa - cd * ca)  # aerodynamic forces per unit mass
-    ay = qs_m * cy
-    az = -qs_m * (cd * sa + cl * ca)
+    cy = -1.6 * beta + side_0
+    ax, ay, az = once((qs_m * (cl * sa - cd * ca), qs_m * cy, -qs_m * (cd * sa + cl * ca)), one)  # forces per mass
 
     tail_volume = 3.1 * tail * lt / c
-    # terms of the controls alone first: the same in every Runge-Kutta stage, computed once per step
-    roll = (0.22 * controls.rudder - 0.6 * controls.aileron) - 1.4 * beta + chord_v * (-11.0 * p_air + 5.0 * r_air)
+    roll = roll_0 - 1.4 * beta + chord_v * (-11.0 * p_air + 5.0 * r_air)
     pitch = (-0.59 - tail_volume * tail_incidence
              - 4.03 * tail * (lt / c) ** 2 * chord_v * q_air)
-    yaw = (-0.63 * controls.rudder + (1.0 - alpha * (180.0 / (15.0 * math.pi))) * beta
-           + chord_v * (1.7 * p_air - 11.5 * r_air))
-    dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
-    t1, t2 = controls.throttle1 * body.thrust_per_mass, controls.throttle2 * body.thrust_per_mass
-    thrust, thrust_m, thrust_n = once((t1 + t2, (params.z_cg_m - params.engine_z_m) * (t1 + t2),
-                                       params.engine_y_m * (t1 - t2)), one)  # the same in every stage
-    moment_l = qs_m * c * roll + ay * dz  # moments per unit mass
-    moment_m = qs_m * c * pitch + az * dx - ax * dz + thrust_m
-    moment_n = qs_m * c * yaw - ay * dx + thrust_n
-    ax, ay, az, moment_l, moment_m, moment_n = once((ax, ay, az, moment_l, moment_m, moment_n), one)
+    yaw = yaw_0 + (1.0 - alpha * (180.0 / (15.0 * math.pi))) * beta + chord_v * (1.7 * p_air - 11.5 * r_air)
+    moment_l, moment_n = once((qs_m * c * roll + ay * dz, qs_m * c * yaw - ay * dx + thrust_n), one)  # per mass
+    moment_m = qs_m * c * pitch + az * dx - ax * dz + thrust_m  # read by q_dot alone
 
     g = params.gravity_m_s2
     sphi, cphi = jnp.sin(state.phi), jnp.cos(state.phi)
@@ -217,7 +215,7 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     qdot = body.m_m * moment_m + body.q_pr * p * r + body.q_pp * (p * p - r * r)
     rdot = body.l_n * moment_l + body.n_n * moment_n + (body.r_p * p + body.r_r * r) * q
 
-    turn = q * sphi + r * cphi
+    turn = once(q * sphi + r * cphi, one)
     down = -u * sth + (v * sphi + w * cphi) * cth
     side = v * cphi - w * sphi
     along = u * cth + (v * sphi + w * cphi) * sth
@@ -239,15 +237,15 @@ def step(params: RcamParams, state: RcamState, controls: RcamControls, density_k
     body = body_constants(params) if body is None else body
 
     def f(x):
-        return once(derivatives(params, x, controls, density_kg_m3, gust, one, body), one)
+        return derivatives(params, x, controls, density_kg_m3, gust, one, body)
 
     def add(x, k, h):
         return once(jax.tree.map(lambda a, b: a + h * b, x, k), one)
 
-    k1 = f(state) if k1 is None else k1
-    k2 = f(add(state, k1, 0.5 * dt_s))
-    k3 = f(add(state, k2, 0.5 * dt_s))
-    k4 = f(add(state, k3, dt_s))
+    k1 = once(f(state), one) if k1 is None else k1
+    k2 = once(f(add(state, k1, 0.5 * dt_s)), one)
+    k3 = once(f(add(state, k2, 0.5 * dt_s)), one)
+    k4 = f(add(state, k3, dt_s))  # read by the final sum alone
     new = jax.tree.map(lambda x, a, b, c, d: x + dt_s / 6.0 * (a + 2.0 * (b + c) + d), state, k1, k2, k3, k4)
     return new, k1
 

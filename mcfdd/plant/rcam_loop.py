@@ -218,11 +218,12 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     speed = jnp.sqrt(b.u**2 + b.v**2 + b.w**2)  # through the frozen gust field
     gust_next, gust = turbulence.gust_step(params.gust, state.gust, b.altitude, speed, noise[:turbulence.GUST_NORMALS],
                                            dt_s, one)
+    gust = once(gust, one)
     air = rcam.air_data(b, gust)
     _, pressure, density, sound = once(atmosphere.isa(b.altitude), one)
     vcas = atmosphere.calibrated_airspeed_at_pressure(air.airspeed / sound, pressure)
     qbar = 0.5 * density * air.airspeed**2
-    sphi, cphi, sth, cth = jnp.sin(b.phi), jnp.cos(b.phi), jnp.sin(b.theta), jnp.cos(b.theta)
+    sphi, cphi, sth, cth = once((jnp.sin(b.phi), jnp.cos(b.phi), jnp.sin(b.theta), jnp.cos(b.theta)), one)
     climb = b.u * sth - (b.v * sphi + b.w * cphi) * cth
     gamma = jnp.arcsin(jnp.clip(climb / speed, -1.0, 1.0))
     air, vcas, qbar, density, gamma = once((air, vcas, qbar, density, gamma), one)

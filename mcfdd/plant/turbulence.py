@@ -288,7 +288,9 @@ def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6,
     however the point moves, so each gust has the Dryden variance of the current point. ``one`` is
     the runtime 1.0 of :func:`mcfdd.compute.once` (scales and filter coefficients feed several states).
     """
-    sigma_uv, length_uv, sigma_w, length_w = once(gust_scales(params, altitude_m, one), one)
+    sigma_uv, length_uv, sigma_w, length_w = gust_scales(params, altitude_m, one)
+    sigma_uv, sigma_w = once((sigma_uv, sigma_w), one)  # the lengths are read as divisors, where a stored
+    # quotient x / 1 would be re-associated and recomputed: each is computed where it is read
     step_length = dt_s * tas_m_s
     r_uv, r_w, r_p = step_length / length_uv, step_length / length_w, step_length * params.span_rate
     r_r = r_p * (4.0 / 3.0)  # tau_r = 3 b / (pi V)
