@@ -435,12 +435,13 @@ def test_bad_stall_gate_values_are_named(key, value, message):
 
 
 def test_stall_gate_off_by_default_and_built_only_when_on():
-    """A config without the gate builds none (so its campaigns are those of before); a fraction builds it in rod
-    units."""
+    """A config without the gate builds none (so its campaigns are those of before); stall_campaign.toml ships it at
+    0.5; a fraction builds it in rod units."""
     from mcfdd.fdd import lpv
 
     bank = lpv.from_dict(io.load_bank_dict(), dtype=np.float64)[0]
-    off = config.load_config(CONFIGS / "stall_campaign.toml")
+    off = config.load_config(CONFIGS / "fault_free.toml")
+    assert config.load_config(CONFIGS / "stall_campaign.toml").fdd.stall.saturation_rate_fraction == 0.5
     on = config.load_config(CONFIGS / "stall_campaign.toml", overrides={"fdd.stall.saturation_rate_fraction": 0.4,
                                                                          "fdd.stall.saturation_error_deg": 3.0})
     assert off.fdd.stall.saturation_rate_fraction == 0.0
