@@ -281,7 +281,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
         stall_rate = None
     else:
         stall_rate, rate = stall.rate_step(stl.saturation.rate_pole, state.stall_rate, u, dt_s)
-        stall_open = stall.saturation_margin(stl.saturation, k[0], u_c, u, rate) < 0.0
+        stall_open = once(stall.saturation_margin(stl.saturation, k[0], u_c, u, rate), params.one) < 0.0
         stall_xq = jnp.where(stall_open & stall_rate.was_open, stall_xq, residual.init(u))
         stall_rate = stall_rate._replace(was_open=stall_open)
     stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, stall_xq, u, u_c, dt_s), params.one)
