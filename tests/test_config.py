@@ -420,3 +420,34 @@ def test_a_run_with_its_own_seed_draws_its_own_noise():
     np.testing.assert_array_equal(u["own"], u["own-again"])
     np.testing.assert_array_equal(u["shared"], u["explicit"])
     assert np.abs(u["own"] - u["shared"]).max() > 0.0
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("saturation_rate_fraction", 1.5, "1.5 is outside the allowed range [0.0, 1.0]"),
+    ("saturation_rate_fraction", -0.1, "-0.1 is outside the allowed range [0.0, 1.0]"),
+    ("saturation_rate_fraction", "half", "expected a number, got string 'half'"),
+    ("saturation_error_deg", 0.0, "0.0 is outside the allowed range (0.0, 25.0]"),
+    ("rate_pole_1_s", 0.0, "0.0 is outside the allowed range (0.0, 10000.0]"),
+])
+def test_bad_stall_gate_values_are_named(key, value, message):
+    """The stall detector's rate-saturation gate: a bad value ends with one line naming its key and range."""
+    with pytest.raises(config.ConfigError, match=re.escape(f"fdd.stall.{key}: {message}")):
+        config.load_config(CONFIGS / "stall_campaign.toml", overrides={f"fdd.stall.{key}": value})
+
+
+def test_stall_gate_off_by_default_and_built_only_when_on():
+    """A config without the gate builds none (so its campaigns are those of before); stall_campaign.toml ships it at
+    0.5; a fraction builds it in rod units."""
+    from mcfdd.fdd import lpv
+
+    bank = lpv.from_dict(io.load_bank_dict(), dtype=np.float64)[0]
+    off = config.load_config(CONFIGS / "fault_free.toml")
+    assert config.load_config(CONFIGS / "stall_campaign.toml").fdd.stall.saturation_rate_fraction == 0.5
+    on = config.load_config(CONFIGS / "stall_campaign.toml", overrides={"fdd.stall.saturation_rate_fraction": 0.4,
+                                                                         "fdd.stall.saturation_error_deg": 3.0})
+    assert off.fdd.stall.saturation_rate_fraction == 0.0
+    r_arm = 0.0525
+    assert build.fdd_params(off.fdd, bank, r_arm).stall.saturation is None
+    gate = build.fdd_params(on.fdd, bank, r_arm).stall.saturation
+    assert gate.rate_fraction == 0.4 and gate.rate_pole == 100.0
+    assert gate.error_m == pytest.approx(math.radians(3.0) * r_arm, rel=1e-12)

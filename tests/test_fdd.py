@@ -20,7 +20,7 @@ from scipy.optimize import minimize_scalar
 from helpers import ROUNDING
 from mcfdd import io
 from mcfdd.analysis import build
-from mcfdd.config import FddConfig, LoeDetectionConfig
+from mcfdd.config import FddConfig, LoeDetectionConfig, StallDetectionConfig
 from mcfdd.fdd import decision, evaluator, lpv, residual, stall, system, thresholds
 
 DT_S = 0.01
@@ -890,3 +890,123 @@ def test_noise_floor_decides_on_a_quiet_sensor_what_an_absolute_floor_hides(bank
     quiet = excited(relative, 0.02)
     assert quiet[dither].mean() > 0.9 and not quiet[at_rest].any()
     assert not excited(relative, 0.07)[at_rest | dither].any()
+
+
+# ---------------------------------------------------------------------------------------------
+# Rate-saturation gate of the stall detector
+
+GATE = stall.SaturationGate(error_m=3.5 * DEG_M, rate_fraction=0.5, rate_pole=100.0)
+
+
+def gate_reference(u_c, u, k, gate):
+    """The gate written out in numpy, sample by sample: the backward difference of u low-passed at the rate pole
+    (from rest), then closed where |u_c - u| >= error_m and the rate towards the command reaches
+    rate_fraction k error_m; its margin the lesser of the two comparisons, each relative to its threshold."""
+    phi = math.exp(-gate.rate_pole * DT_S)
+    rate, previous, rates = 0.0, u[0], []
+    for m in u:
+        rate = phi * rate + (1.0 - phi) * (m - previous) / DT_S
+        previous = m
+        rates.append(rate)
+    rates = np.array(rates)
+    error = u_c - u
+    towards = np.sign(error) * rates
+    need = gate.rate_fraction * k * gate.error_m
+    closed = (np.abs(error) >= gate.error_m) & (towards >= need)
+    margin = np.minimum((np.abs(error) - gate.error_m) / gate.error_m, (towards - need) / need)
+    return rates, closed, margin
+
+
+@jax.jit
+def run_gate(u_c, u, k):
+    def body(state, inp):
+        c, m, k_n = inp
+        state, rate = stall.rate_step(GATE.rate_pole, state, m, DT_S)
+        return state, (rate, stall.saturation_margin(GATE, k_n, c, m, rate))
+    return jax.lax.scan(body, stall.rate_init(u[0]), (u_c, u, k))[1]
+
+
+def saturated_rod(u_c, gain, limit_deg=4.0, stop_deg=np.inf):
+    """Exact samples of a rod x' = k sat(u_c - x) whose servo valve saturates beyond ``limit_deg`` of tracking error
+    (u_c held and k = gain(x, sgn(u_c - x)) frozen over each sample), stopped from ``stop_deg`` on (a stall)."""
+    x, rod = 0.0, []
+    for c in u_c:
+        rod.append(x)
+        k = gain(x, np.sign(c - x))
+        x = min(x + (1.0 - math.exp(-k * DT_S)) * np.clip(c - x, -limit_deg * DEG_M, limit_deg * DEG_M),
+                stop_deg * DEG_M)
+    return np.array(rod)
+
+
+def hand_made_histories():
+    """(name, u_c, u, k) of 1.5 s each, rod units, 0.05 mm of sensor noise: a slew at the saturated rate both ways
+    (a 20 deg step at 0.2 s, gain 25 1/s, valve saturated beyond 4 deg: 88 deg/s), a rod stopped at 12 deg short of
+    that command (a stall), a rod tracking a slow command (small error) and a slew against the command."""
+    n, noise = 150, np.random.default_rng(22).normal(0.0, 0.05e-3, 150)
+    k = np.full(n, 25.0)
+    step = np.where(np.arange(n) >= 20, 20.0, 0.0) * DEG_M
+    rod = saturated_rod(step, lambda x, s: 25.0)
+    stopped = saturated_rod(step, lambda x, s: 25.0, stop_deg=12.0)
+    slow = 10.0 * DEG_M * np.arange(n) * DT_S
+    return [("slew out", step, rod + noise, k), ("slew back", -step, -rod + noise, k),
+            ("stall", step, stopped + noise, k), ("tracking", slow + 0.5 * DEG_M, slow + noise, k),
+            ("against", -step, rod + noise, k)]
+
+
+@pytest.mark.parametrize("case", range(5))
+def test_saturation_gate_against_a_numpy_reference(case):
+    """The gate's measured rate and signed margin equal the numpy reference on hand-made histories, the margin's sign
+    is the gate (closed exactly where the margin is not negative), and the gate closes on a saturated slew towards the
+    command only: never on a stalled rod, a tracking rod or a rod moving away from its command."""
+    name, u_c, u, k = hand_made_histories()[case]
+    rate, margin = (np.asarray(x) for x in run_gate(u_c, u, k))
+    ref_rate, closed, ref_margin = gate_reference(u_c, u, k, GATE)
+    np.testing.assert_allclose(rate, ref_rate, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(margin, ref_margin, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(margin >= 0.0, closed)
+    if name.startswith("slew"):
+        assert closed.sum() >= 10 and not closed[:20].any()
+    elif name == "stall":
+        assert not closed[40:].any()  # stopped since 0.35 s: rate low-passed down, never gated after
+    else:
+        assert not closed.any()
+
+
+def stall_params(bank, fraction):
+    return build.fdd_params(FddConfig(stall=StallDetectionConfig(saturation_rate_fraction=fraction)), bank,
+                            r_arm_m=R_ARM_M)
+
+
+@jax.jit
+def run_stall_detector(params, u_c, u):
+    def body(state, inp):
+        c, m, t = inp
+        state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+        return state, (out.r_stall, out.theta_stall)
+    return jax.lax.scan(body, system.init(params, u[0]), (u_c, u, np.arange(u.size) * DT_S))[1]
+
+
+def test_stall_gate_hides_a_saturated_slew_not_a_stall(bank):
+    """A slew at the valve's saturated rate (a rod of the fault-free model whose valve saturates beyond 4 deg of
+    error) raises the ungated detector above tau (1 deg) with no stall; with the gate the residual is exactly 0 on
+    the gated samples and the sample after, and theta stays below tau. A rod that stops short of its command (a
+    stall) is detected within 0.1 s of its stop with the gate. Fraction 0 builds no gate and no state."""
+    off, on = stall_params(bank, 0.0), stall_params(bank, 0.5)
+    assert off.stall.saturation is None and system.init(off, 0.0).stall_rate is None
+    gain = eq4_gains(bank, VCAS_M_S, ALT_M)
+    n, noise = 150, np.random.default_rng(23).normal(0.0, 0.05e-3, 150)
+    u_c = np.where(np.arange(n) >= 20, 20.0, 0.0) * DEG_M
+    u = saturated_rod(u_c, lambda x, s: gain(x, s)[0]) + noise
+    tau = on.stall.tau
+    r_off, theta_off = (np.asarray(x) for x in run_stall_detector(off, u_c, u))
+    r_on, theta_on = (np.asarray(x) for x in run_stall_detector(on, u_c, u))
+    k0 = np.array([gain(m, s)[0] for m, s in zip(u, np.sign(u_c - u))])
+    _, closed, _ = gate_reference(u_c, u, k0, on.stall.saturation)
+    restarted = closed | np.roll(closed, 1)
+    assert theta_off.max() > 2.0 * tau and theta_on.max() < 0.5 * tau
+    assert closed.sum() >= 10 and np.all(r_on[restarted] == 0.0)
+    np.testing.assert_allclose(r_on[:20], r_off[:20], rtol=1e-12, atol=1e-18)
+    stopped = saturated_rod(u_c, lambda x, s: gain(x, s)[0], stop_deg=12.0) + noise
+    stop = int(np.argmax(stopped - noise >= 12.0 * DEG_M))
+    fired = np.asarray(run_stall_detector(on, u_c, stopped)[1]) >= tau
+    assert not fired[:stop].any() and fired[stop:stop + 10].any() and fired[stop + 10:].all()

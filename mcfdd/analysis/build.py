@@ -83,7 +83,9 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
                                      stl.signal.position_min_deg * deg, stl.signal.window_s,
                                      stl.signal.error_min_deg * deg),
             model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, evaluator_params(stl.model.evaluator),
-                                  stl.model.tau_deg * deg)),
+                                  stl.model.tau_deg * deg),
+            saturation=None if stl.saturation_rate_fraction == 0.0 else stall.SaturationGate(
+                stl.saturation_error_deg * deg, stl.saturation_rate_fraction, stl.rate_pole_1_s)),
     )
 
 

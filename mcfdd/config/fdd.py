@@ -107,6 +107,21 @@ class StallDetectionConfig(Section):
     pole_1_s: float = spec(10.0, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of eq. (20)")
     evaluator: EvaluatorConfig = spec(EvaluatorConfig(alpha=1.0, beta=1.0, gamma_1_s=0.1))
     tau_deg: float = spec(1.0, lo=0.0, lo_open=True, doc="threshold tau of eq. (25)")
+    saturation_rate_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="rate-saturation gate: the detector is not "
+                                           "evaluated (its filter restarts from equilibrium) while |u_c - u| exceeds "
+                                           "saturation_error_deg and the rod moves towards the command at least this "
+                                           "fraction of the fault-free model's saturated rate k x saturation_error_deg "
+                                           "(a slew at the valve's saturated rate, which the first-order model (20) "
+                                           "does not follow; a stalled rod does not move and is never gated); 0 "
+                                           "builds no gate")
+    saturation_error_deg: float = spec(3.5, lo=0.0, lo_open=True, hi=25.0, doc="rate-saturation gate: the servo "
+                                       "valve's linear range of the tracking error (current saturation at i_max / Kp "
+                                       "= 4 deg)")
+    rate_pole_1_s: float = spec(100.0, lo=0.0, lo_open=True, hi=1e4, doc="rate-saturation gate: pole of the "
+                                "low-pass of the measured rod rate (backward difference of the measured position); "
+                                "fast, so the gate closes at the first sample of a saturated slew, before the "
+                                "detector's residual has grown: 0.05 mm of sensor noise gives the rate an RMS "
+                                "of about 5 deg/s, against a saturated rate near 90 deg/s")
     identification: choice(("signal", "model")) = spec("signal", doc="which eta is eta_stall")
     signal: SignalRulesConfig = spec(SignalRulesConfig())
     model: ModelRuleConfig = spec(ModelRuleConfig())

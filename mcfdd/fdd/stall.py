@@ -27,6 +27,20 @@ Each rule also has a signed margin relative to its threshold (``(x - threshold) 
 positive where the rule holds up to rounding; :func:`mcfdd.fdd.decision.relative`), and eta of a method the least of
 its rules' margins: the scoring's false stall identification margin (DESIGN.md section 5a) is
 built from them.
+
+Rate-saturation gate of the stall detector (off by default). The detector (20) models the rod as a
+first-order lag, rate k (u_c - u); beyond the servo valve's linear range (|u_c - u| above
+``error_m``, where the valve current saturates at i_max) the rod slews at the saturated rate, about
+k ``error_m``, far below k (u_c - u), and the residual grows as in a stall: a full-stick reversal of a
+slow servo gave theta 8 deg against tau = 1 deg with no stall load (README, Worst cases and tuning).
+Both show a large tracking error; what tells them apart on board is the rod's measured motion: in
+a saturated slew it moves towards the command at about the saturated rate, in a stall it stops.
+The gate is closed (the detector's filter restarts from equilibrium with the measured position, at
+that sample and the first one after, as the LOE bank's gates do) where :func:`saturation_margin`
+is not negative: the least of the tracking error over ``error_m`` and the measured rate towards
+the command, ``sgn(u_c - u) udot``, over ``rate_fraction`` times the model's saturated rate
+``k error_m``, each relative. The measured rate is the backward difference of the measured position,
+low-passed at ``rate_pole`` (:func:`rate_step`); a stall (rate near 0) is never gated.
 """
 
 from __future__ import annotations
@@ -55,6 +69,45 @@ class ModelRule(NamedTuple):
     pole: float
     evaluator: evaluator.NarendraParams
     tau: float
+
+
+class SaturationGate(NamedTuple):
+    """Parameters of the rate-saturation gate of the stall detector, rod units (m, 1/s)."""
+
+    error_m: float  # servo valve linear range: beyond this tracking error the valve current saturates
+    rate_fraction: float  # gated while the rod moves towards the command at least this fraction of k error_m
+    rate_pole: float  # pole of the low-pass of the measured rate (1/s)
+
+
+class RateState(NamedTuple):
+    """Low-passed measured rate of the rod and whether the stall detector was evaluated at the last sample."""
+
+    previous: jnp.ndarray  # measured position of the sample before (m)
+    rate: jnp.ndarray  # low-passed backward difference (m/s)
+    was_open: jnp.ndarray  # the gate was open (the detector evaluated) at the sample before
+
+
+def rate_init(u0) -> RateState:
+    """A rod at rest at measured position u0, the gate open."""
+    u0 = jnp.asarray(u0)
+    return RateState(u0, jnp.zeros_like(u0), jnp.asarray(True))
+
+
+def rate_step(pole, state: RateState, u, dt_s: float):
+    """Measured rate including the sample u (m): ``rate+ = phi rate + (1 - phi) (u - u_prev) / dt``,
+    ``phi = exp(-pole dt)``. Returns (state with the new position and rate, rate in m/s)."""
+    phi = jnp.exp(-pole * dt_s)
+    rate = phi * state.rate + (1.0 - phi) * (u - state.previous) / dt_s
+    return state._replace(previous=u, rate=rate), rate
+
+
+def saturation_margin(gate: SaturationGate, k, u_c, u, rate):
+    """Signed margin of the rate-saturation gate (closed where it is not negative): the least of
+    ``|u_c - u|`` over ``error_m`` and ``sgn(u_c - u) rate`` over ``rate_fraction k error_m`` (the
+    model's saturated rate at gain k, 1/s), each relative (:func:`mcfdd.fdd.decision.relative`)."""
+    error = u_c - u
+    return jnp.minimum(decision.relative(jnp.abs(error), gate.error_m),
+                       decision.relative(jnp.sign(error) * rate, gate.rate_fraction * k * gate.error_m))
 
 
 class SignalState(NamedTuple):

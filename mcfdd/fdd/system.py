@@ -50,7 +50,9 @@
   (``detected``: the decoded signature (15), confirmed over ``confirm_s``). Thresholds of the
   signature are constant or scheduled online on eq. (16) at the current scheduling point.
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
-  evaluator and decision (25), and both identification methods of Section 5.4.
+  evaluator and decision (25), and both identification methods of Section 5.4. Optionally the
+  detector is not evaluated while the rod slews at its saturated rate (:mod:`mcfdd.fdd.stall`'s
+  rate-saturation gate: its filter restarts from equilibrium there and at the first sample after).
 
 Inputs are what an aircraft has: the command u_c, the measured rod position u and the flight
 parameters p = (Vcas, h). All numbers that may be tuned are leaves of :class:`FddParams`.
@@ -103,6 +105,8 @@ class StallParams(NamedTuple):
     tau: float  # on theta, rod units
     signal: stall.SignalRules
     model: stall.ModelRule
+    # rate-saturation gate of the detector (:mod:`mcfdd.fdd.stall`); None: no gate (not built)
+    saturation: stall.SaturationGate | None = None
 
 
 class FddParams(NamedTuple):
@@ -129,6 +133,7 @@ class FddState(NamedTuple):
     stall_xi: jnp.ndarray
     signal: stall.SignalState
     model: stall.ModelState
+    stall_rate: stall.RateState | None  # measured rate of the stall detector's gate (None without the gate)
 
 
 class FddOutputs(NamedTuple):
@@ -226,6 +231,7 @@ def init(params: FddParams, u0) -> FddState:
         stall_xi=jnp.zeros_like(u0),
         signal=stall.signal_init(u0),
         model=stall.model_init(u0),
+        stall_rate=None if params.stall.saturation is None else stall.rate_init(u0),
     )
 
 
@@ -270,7 +276,15 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
         floor = once(jnp.maximum(floor, loe.excitation_noise_factor * (ev.alpha + ev.beta / ev.gamma) * noise_rms),
                      params.one)
     excited = theta_w >= floor
-    stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, state.stall_xq, u, u_c, dt_s), params.one)
+    stall_xq = state.stall_xq
+    if stl.saturation is None:
+        stall_rate = None
+    else:
+        stall_rate, rate = stall.rate_step(stl.saturation.rate_pole, state.stall_rate, u, dt_s)
+        stall_open = once(stall.saturation_margin(stl.saturation, k[0], u_c, u, rate), params.one) < 0.0
+        stall_xq = jnp.where(stall_open & stall_rate.was_open, stall_xq, residual.init(u))
+        stall_rate = stall_rate._replace(was_open=stall_open)
+    stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, stall_xq, u, u_c, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
     gate_margin = once(stall.conditions_margin(stl.signal, u_c, u), params.one)
@@ -300,7 +314,7 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     detection_margin = once(detection_margin, params.one)
 
     new = FddState(bank_xq, bank_xi, band, band_xi, band_w_xi, noise, valid, error_lp, confirm, detect, detect_min,
-                   since_stall, stall_xq, stall_xi, signal, model)
+                   since_stall, stall_xq, stall_xi, signal, model, stall_rate)
     return new, FddOutputs(r, theta, theta_u, theta_w, ratio, load, excited, noise_rms, iota, decoded, detected, fault,
                            detection_margin, r_stall, theta_stall, iota_stall, eta_signal, eta_model, *eta_margins,
                            theta_sl)
