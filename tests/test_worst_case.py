@@ -68,6 +68,38 @@ def test_without_pool_points_left_an_infeasible_start_backtracks():
         optimise.Restarts(pool, 3)
 
 
+EDGE = jnp.array([0.7, 0.3])
+
+
+@jax.jit
+def beyond(u):
+    """Concave score whose maximum (EDGE) lies outside the feasible set u[0] <= 0.5: the supremum is on its edge."""
+    value, grad = jax.vmap(jax.value_and_grad(lambda v: -jnp.sum((v - EDGE) ** 2)))(u)
+    return jnp.where(u[:, 0] > 0.5, -jnp.inf, value), None, grad
+
+
+@pytest.mark.parametrize("patience", [1, 2, 3])
+def test_a_start_is_replaced_after_patience_infeasible_evaluations_in_a_row(patience):
+    pool = np.array([[0.3, 0.3], [0.1, 0.1]])
+    restarts = optimise.Restarts(pool, 1, patience)
+    trace = optimise.run(beyond, jnp.asarray(pool[:1]), optimise.backtracking(0.05), 30, maximize=True,
+                         project=box, restarts=restarts)
+    infeasible = np.array([not np.isfinite(np.asarray(v)[0]) for v in trace.values])
+    params = np.stack([np.asarray(p)[0] for p in trace.params])
+    # brute-force reference: the first evaluation that closes a run of `patience` infeasible ones
+    runs = np.array([infeasible[max(0, i - patience + 1):i + 1].all() and i + 1 >= patience
+                     for i in range(len(infeasible))])
+    first = int(np.argmax(runs))
+    assert runs.any() and restarts.slots[0] == 1
+    np.testing.assert_array_equal(params[first + 1], pool[1])
+    assert not np.any(np.all(params[:first + 1] == pool[1], axis=1))
+    # before that the start backtracked towards the edge: its best feasible point lies within a step of it
+    best = max(float(np.asarray(v)[0]) for v in trace.values[:first + 1] if np.isfinite(np.asarray(v)[0]))
+    assert -0.2 ** 2 - 2 * 0.2 * 0.05 <= best < -0.2 ** 2
+    with pytest.raises(ValueError, match="patience 0"):
+        optimise.Restarts(pool, 1, 0)
+
+
 def test_the_pool_holds_the_starts_then_the_runs_with_the_event_worst_first():
     hard = np.array([0.3, np.nan, 0.9, 0.1, np.nan, 0.5])
     points = wc.Points(np.arange(6.0)[:, None], {"turbulence": np.array(list("abcdef"))}, np.zeros((6, 1)), hard,

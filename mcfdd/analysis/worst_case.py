@@ -280,10 +280,12 @@ def temperatures(first: float, last: float, iterations: int) -> np.ndarray:
 
 
 def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
-                    callback=None, pool: Pool | None = None, final_temperature: float = 0.0) -> list[Points]:
+                    callback=None, pool: Pool | None = None, final_temperature: float = 0.0,
+                    patience: int = 1) -> list[Points]:
     """Projected gradient search (:func:`ascend`) from the starts u0 (S, d) with their categorical
     columns and keys or, given a ``pool``, from its first S points (u0, categories and keys are then its
-    first S), an infeasible start moving to the pool's next point. The smooth statistic's temperature
+    first S), a start infeasible ``patience`` evaluations in a row moving to the pool's next point (before,
+    it backtracks). The smooth statistic's temperature
     falls from the problem's to ``final_temperature`` (:func:`temperatures`; 0: constant). Returns the
     evaluated points of every iteration (iterations + 1 of them; ``start``: the pool index of each);
     ``callback(i, points)`` sees each."""
@@ -291,7 +293,7 @@ def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: in
     starts = np.shape(u0)[0]
     if pool is None:
         pool = Pool(np.asarray(u0), categories, keys, np.arange(starts))
-    restarts = optimise.Restarts(pool.u, starts)
+    restarts = optimise.Restarts(pool.u, starts, patience)
     schedule = iter(temperatures(problem.temperature, final_temperature, iterations))
 
     def score_and_grad_fn(u):

@@ -283,6 +283,8 @@ class SearchSettings(Section):
                      "batch)")
     screening_max: int = spec(0, lo=0, hi=1_000_000, doc="most points screened when refilling to `pool` (0: "
                               "`screening`, no refill)")
+    patience: int = spec(1, lo=1, hi=10_000, doc="infeasible evaluations in a row (the run lost the event) after "
+                         "which a start is replaced by the pool's next point; before, it backtracks with half steps")
     final_temperature: float = spec(0.0, lo=0.0, hi=10.0, doc="temperature at the last gradient evaluation: a "
                                     "geometric schedule from `temperature` (0: constant `temperature`)")
 

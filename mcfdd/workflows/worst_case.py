@@ -166,7 +166,7 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
             shown.update(1)
 
         iterations = wc.gradient_search(problem, *wc.starts_of(pool, s.starts), s.iterations, s.learning_rate,
-                                        callback, pool, s.final_temperature)
+                                        callback, pool, s.final_temperature, s.patience)
     times["gradient"] = stamps[-1] - stamps[0]
     steps = np.diff(stamps)
     run_time = float(np.mean(steps[1:]) * len(steps)) if len(steps) > 1 else times["gradient"]
@@ -208,8 +208,9 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
              f"(random design) with the same number of simulations ({budget}) and with as many as run in the "
              f"search's time without compilation ({n_time}: the gradient steps and the screening's batches, its "
              f"first at Monte Carlo's rate). A start whose "
-             f"run loses the event (no bound: {feasible} of {n_screened} screened runs have one) is replaced by the "
-             f"next best screened run that has it ({restarted} replacements). A gradient "
+             f"run loses the event (no bound: {feasible} of {n_screened} screened runs have one) {s.patience} "
+             f"evaluation(s) in a row (backtracking with half steps before) is replaced by the next best screened "
+             f"run that has it ({restarted} replacements). A gradient "
              f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
              f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
              f"Values in {UNITS[s.detector]}.",
