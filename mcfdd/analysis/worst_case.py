@@ -29,9 +29,14 @@ Design decisions (DESIGN.md section 5):
   search's tau_f on ``configs/worst_case_stall.toml`` was the memory of a 9-s stall (34 deg).
 - Events: a run whose bound does not exist (no relevant stall load for the stall detector's tau_d,
   a run that need not be detected, a peak hinge-load fraction below ``min_load_fraction``) scores
-  -inf. A start that reaches such a point is replaced by the screening's next best point that has
-  the event (:func:`pool_from`, :class:`mcfdd.analysis.optimise.Restarts`); once the pool is used
-  up, it backtracks to its best point.
+  -inf. A start that reaches such a point ``patience`` evaluations in a row is replaced by the
+  screening's next best point that has the event (:func:`pool_from`,
+  :class:`mcfdd.analysis.optimise.Restarts`); before that, and once the pool is used up, it
+  backtracks to its best point with half steps (the weakest stall load lies at the edge of the set
+  of runs that have one). Where the event is rare, :func:`screen` screens on along the Sobol
+  sequence until enough runs have it.
+- Temperature: the smooth statistic's temperature may fall over the steps (:func:`temperatures`);
+  on a detected run's plateau this isolates the deciding sample's gradient, it does not create one.
 - Time: the onset of a fault and the start of a manoeuvre are continuous axes where the space
   gives them a range (``fault_onset_s``, ``t_start_s``); the extreme's timing is searched with
   the rest.
