@@ -432,11 +432,12 @@ def search_history(df: pd.DataFrame, value: str, smooth: str, label: str, bound:
             (("screening",), ":", "k", "best of the screening"),
             (("monte_carlo",), "-.", "k", "Monte Carlo, equal number of simulations"),
             (("monte_carlo", "monte_carlo_extra"), "-.", "C7", "Monte Carlo, equal run time")):
-        values = df.loc[df["method"].isin(methods), value].to_numpy(dtype=float)
-        values = values[np.isfinite(values)]
+        runs = df.loc[df["method"].isin(methods), value].to_numpy(dtype=float)
+        values = runs[np.isfinite(runs)]
         if values.size:
             best = values.max() if bound == "free" else values.min()
-            ax.axhline(best, color=color, ls=style, lw=1.2, label=f"{name} ({values.size} runs)")
+            ax.axhline(best, color=color, ls=style, lw=1.2,
+                       label=f"{name} ({runs.size:,} runs, {values.size:,} with the bound)")
     ax.set_xlabel("gradient iteration")
     ax.set_ylabel(label)
     ax.grid(alpha=0.3)

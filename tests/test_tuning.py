@@ -347,6 +347,8 @@ fault_kind = {faults}
     (config.WorstCaseConfig, WORST.format(search="detector = 'loe'\nbound = 'detect'", faults='["none", "leakage"]'),
      "space.fault_kind"),
     (config.WorstCaseConfig, WORST.format(search="temperature = 0.0", faults='"none"'), "search.temperature"),
+    (config.WorstCaseConfig, WORST.format(search="screening_max = 32", faults='"none"'), "search.screening_max"),
+    (config.WorstCaseConfig, WORST.format(search="patience = 0", faults='"none"'), "search.patience"),
     (config.TuneConfig, "[tune]\nmargin = 1.5\n", "tune.margin"),
     (config.TuneConfig, "[tune]\ndetector = 'bank'\n", "tune.detector"),
     (config.TuneConfig, "[training]\nseed = 3\n[validation]\nseed = 3\n", "validation.seed"),

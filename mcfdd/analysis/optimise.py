@@ -80,23 +80,32 @@ class Restarts:
     """The points of a multi-start run: S starts, then a reserve taken in order (``pool`` (P, d), P >= S).
 
     ``slots`` (S,) is the pool index each start is at (0 .. S - 1 at first); a start whose value is
-    -inf moves to the next unused pool point while any is left (else it only backtracks).
+    -inf ``patience`` evaluations in a row moves to the next unused pool point while any is left; before
+    that (and once the pool is used up) it only backtracks (:func:`backtracking`), so a start whose
+    extreme lies at the edge of the feasible set approaches it with ever shorter steps.
     """
 
-    def __init__(self, pool, starts: int):
+    def __init__(self, pool, starts: int, patience: int = 1):
         self.pool = jnp.asarray(pool)
         if not 1 <= starts <= self.pool.shape[0]:
             raise ValueError(f"restarts: {starts} starts need 1 to {self.pool.shape[0]} pool points")
+        if patience < 1:
+            raise ValueError(f"restarts: patience {patience} must be at least 1")
         self.slots = np.arange(starts)
         self.next = starts
+        self.patience = patience
+        self.misses = np.zeros(starts, int)  # infeasible evaluations in a row, per start
 
     def replace(self, params, value):
-        """(params with the infeasible starts at their new pool points, the replaced starts (S,) bool)."""
+        """(params with the starts infeasible ``patience`` times in a row at their new pool points, the
+        replaced starts (S,) bool)."""
+        infeasible = ~np.isfinite(np.asarray(value))
+        self.misses = np.where(infeasible, self.misses + 1, 0)
         replaced = np.zeros(len(self.slots), bool)
-        for s in np.flatnonzero(~np.isfinite(np.asarray(value))):
+        for s in np.flatnonzero(self.misses >= self.patience):
             if self.next == self.pool.shape[0]:
                 break
-            self.slots[s], self.next, replaced[s] = self.next, self.next + 1, True
+            self.slots[s], self.next, replaced[s], self.misses[s] = self.next, self.next + 1, True, 0
         if replaced.any():
             params = jnp.where(jnp.asarray(replaced)[:, None], self.pool[self.slots].astype(params.dtype), params)
         return params, replaced

@@ -29,9 +29,14 @@ Design decisions (DESIGN.md section 5):
   search's tau_f on ``configs/worst_case_stall.toml`` was the memory of a 9-s stall (34 deg).
 - Events: a run whose bound does not exist (no relevant stall load for the stall detector's tau_d,
   a run that need not be detected, a peak hinge-load fraction below ``min_load_fraction``) scores
-  -inf. A start that reaches such a point is replaced by the screening's next best point that has
-  the event (:func:`pool_from`, :class:`mcfdd.analysis.optimise.Restarts`); once the pool is used
-  up, it backtracks to its best point.
+  -inf. A start that reaches such a point ``patience`` evaluations in a row is replaced by the
+  screening's next best point that has the event (:func:`pool_from`,
+  :class:`mcfdd.analysis.optimise.Restarts`); before that, and once the pool is used up, it
+  backtracks to its best point with half steps (the weakest stall load lies at the edge of the set
+  of runs that have one). Where the event is rare, :func:`screen` screens on along the Sobol
+  sequence until enough runs have it.
+- Temperature: the smooth statistic's temperature may fall over the steps (:func:`temperatures`);
+  on a detected run's plateau this isolates the deciding sample's gradient, it does not create one.
 - Time: the onset of a fault and the start of a manoeuvre are continuous axes where the space
   gives them a range (``fault_onset_s``, ``t_start_s``); the extreme's timing is searched with
   the rest.
@@ -271,17 +276,30 @@ class Pool(NamedTuple):
     index: np.ndarray
 
 
+def temperatures(first: float, last: float, iterations: int) -> np.ndarray:
+    """The temperature of each of the iterations + 1 gradient evaluations: geometric from ``first`` to
+    ``last`` (``first (last / first)^(i / iterations)``), constant ``first`` where ``last`` is 0."""
+    if last <= 0.0 or iterations == 0:
+        return np.full(iterations + 1, first)
+    return first * (last / first) ** (np.arange(iterations + 1) / iterations)
+
+
 def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: int, learning_rate: float,
-                    callback=None, pool: Pool | None = None) -> list[Points]:
+                    callback=None, pool: Pool | None = None, final_temperature: float = 0.0,
+                    patience: int = 1) -> list[Points]:
     """Projected gradient search (:func:`ascend`) from the starts u0 (S, d) with their categorical
     columns and keys or, given a ``pool``, from its first S points (u0, categories and keys are then its
-    first S), an infeasible start moving to the pool's next point. Returns the evaluated points of every
-    iteration (iterations + 1 of them; ``start``: the pool index of each); ``callback(i, points)`` sees each."""
+    first S), a start infeasible ``patience`` evaluations in a row moving to the pool's next point (before,
+    it backtracks). The smooth statistic's temperature
+    falls from the problem's to ``final_temperature`` (:func:`temperatures`; 0: constant). Returns the
+    evaluated points of every iteration (iterations + 1 of them; ``start``: the pool index of each);
+    ``callback(i, points)`` sees each."""
     box = problem.space.box(problem.dtype)
     starts = np.shape(u0)[0]
     if pool is None:
         pool = Pool(np.asarray(u0), categories, keys, np.arange(starts))
-    restarts = optimise.Restarts(pool.u, starts)
+    restarts = optimise.Restarts(pool.u, starts, patience)
+    schedule = iter(temperatures(problem.temperature, final_temperature, iterations))
 
     def score_and_grad_fn(u):
         slots = restarts.slots.copy()
@@ -289,8 +307,8 @@ def gradient_search(problem: Problem, u0, categories: dict, keys, iterations: in
         anchors = anchors_at(problem, box, np.asarray(u), cats)
         score, (columns, x), grad = score_and_grad(
             problem.model, problem.fdd_params, problem.settings, box, anchors, jnp.asarray(u, problem.dtype),
-            pool.keys[slots], problem.temperature, detector=problem.detector, bound=problem.bound,
-            min_load_fraction=problem.min_load_fraction, **problem.static())
+            pool.keys[slots], float(next(schedule)), detector=problem.detector,
+            bound=problem.bound, min_load_fraction=problem.min_load_fraction, **problem.static())
         return score, _points(problem, u, cats, columns, x)._replace(start=pool.index[slots]), grad
 
     report = None if callback is None else (lambda i, score, points: callback(i, points))
@@ -303,6 +321,25 @@ def sample(problem: Problem, design: str, n: int, seed: int, batch: int, first: 
     u, categories = unit_points(problem.space, design, n, seed)
     return evaluate_points(problem, u[first:], {k: np.asarray(v)[first:] for k, v in categories.items()},
                            run_keys(seed, np.arange(first, n)), batch)
+
+
+def screen(evaluate_rows, batch: int, wanted: int, most: int) -> tuple[Points, int]:
+    """A screening refilled until it holds ``wanted`` runs with the bound's event: rows 0 .. batch - 1 of the
+    design, then the next ``batch`` while fewer than ``wanted`` have a finite bound and fewer than ``most``
+    rows are screened (``wanted`` 0: one batch). ``evaluate_rows(first, n)`` evaluates rows first .. n - 1
+    (:func:`sample`). Returns (the screened points in row order, the number of batches)."""
+    parts = [evaluate_rows(0, batch)]
+    rows = batch
+    while sum(int(np.isfinite(p.hard).sum()) for p in parts) < wanted and rows + batch <= most:
+        parts.append(evaluate_rows(rows, rows + batch))
+        rows += batch
+    return concat(parts), len(parts)
+
+
+def concat(parts: list[Points]) -> Points:
+    """Points of several evaluations, one after the other."""
+    return Points(*(jax.tree.map(lambda *a: np.concatenate(a), *(getattr(p, f) for p in parts))
+                    for f in ("u", "categories", "x", "soft", "hard", "outcomes")))
 
 
 def budget(screening: int, starts: int, iterations: int) -> int:

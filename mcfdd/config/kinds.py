@@ -277,6 +277,16 @@ class SearchSettings(Section):
                                   "for loe_detection in the statistic's units (theta_0 / ||u||)")
     min_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="only runs whose peak hinge-load fraction "
                                     "(peak_load_fraction) reaches this count (detect: the faults an FDD must see)")
+    pool: int = spec(0, lo=0, hi=100_000, doc="screened runs with the bound's event (a relevant stall load, a "
+                     "run that must be detected) wanted as starts and their replacements: while fewer have it, the "
+                     "Sobol sequence is screened on in batches of `screening` points, up to `screening_max` (0: one "
+                     "batch)")
+    screening_max: int = spec(0, lo=0, hi=1_000_000, doc="most points screened when refilling to `pool` (0: "
+                              "`screening`, no refill)")
+    patience: int = spec(1, lo=1, hi=10_000, doc="infeasible evaluations in a row (the run lost the event) after "
+                         "which a start is replaced by the pool's next point; before, it backtracks with half steps")
+    final_temperature: float = spec(0.0, lo=0.0, hi=10.0, doc="temperature at the last gradient evaluation: a "
+                                    "geometric schedule from `temperature` (0: constant `temperature`)")
 
 
 class WorstCaseConfig(Scored):
@@ -290,6 +300,8 @@ class WorstCaseConfig(Scored):
         s = self.search
         if s.starts > s.screening:
             raise Invalid("search.starts", f"{s.starts} exceeds search.screening = {s.screening}")
+        if 0 < s.screening_max < s.screening:
+            raise Invalid("search.screening_max", f"{s.screening_max} is below search.screening = {s.screening}")
         if not any(a.kind == "range" for a in self.space.axes):
             raise Invalid("space", "no continuous axis ([lo, hi]) to search")
         kinds = self.values("fault_kind")

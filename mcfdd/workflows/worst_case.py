@@ -133,20 +133,30 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
                          np.asarray(bank.nu), s.detector, s.bound, s.temperature, sim.n_steps, sim.dt_s,
                          sim.substeps, dtype, s.min_load_fraction)
     scale, value = 180.0 / math.pi / r_arm if s.detector == "stall" else 1.0, VALUES[s.detector]
-    budget = wc.budget(s.screening, s.starts, s.iterations)
     what = f"{'tau_f (26), largest' if s.bound == 'free' else 'tau_d (27), smallest'} {s.detector} bound"
     if s.min_load_fraction > 0:
         what += f" over runs reaching a peak hinge-load fraction of {s.min_load_fraction}"
     note(f"worst-case search for {what}: {space.dim} continuous axes, {len(space.categorical)} categorical; "
-         f"{sim.duration_s} s runs ({sim.n_steps} steps, {sim.precision}); budget {budget} simulations", progress)
-    times, frames = {}, []
-    start = time.perf_counter()
-    screened = wc.sample(problem, "sobol", s.screening, sim.seed, s.screening)
-    times["screening"] = time.perf_counter() - start
-    frames.append(_points_frame(space, screened, scale, value, sim.seed, np.arange(s.screening), method="screening",
-                                start=-1, iteration=-1, index=np.arange(s.screening)))
-    note(f"  screening: {s.screening} Sobol points in {times['screening']:.1f} s (compilation included), worst "
-         f"{wc.extreme(screened.hard * scale, s.bound)[1]:.5g}", progress)
+         f"{sim.duration_s} s runs ({sim.n_steps} steps, {sim.precision}); budget "
+         f"{wc.budget(s.screening, s.starts, s.iterations)} simulations"
+         f"{f' (screening refilled up to {s.screening_max} points for {s.pool} runs with the event)' if s.pool else ''}",
+         progress)
+    times, frames, batch_times = {}, [], []
+
+    def rows(first, n):
+        start = time.perf_counter()
+        points = wc.sample(problem, "sobol", n, sim.seed, s.screening, first)
+        batch_times.append(time.perf_counter() - start)
+        return points
+
+    screened, batches = wc.screen(rows, s.screening, s.pool, max(s.screening_max, s.screening))
+    n_screened = len(screened.hard)
+    budget = wc.budget(n_screened, s.starts, s.iterations)
+    times["screening"] = sum(batch_times)
+    frames.append(_points_frame(space, screened, scale, value, sim.seed, np.arange(n_screened), method="screening",
+                                start=-1, iteration=-1, index=np.arange(n_screened)))
+    note(f"  screening: {n_screened} Sobol points in {batches} batch(es), {times['screening']:.1f} s (compilation "
+         f"included), worst {wc.extreme(screened.hard * scale, s.bound)[1]:.5g}", progress)
     pool = wc.pool_from(screened, s.starts, s.bound, sim.seed)
     stamps = [time.perf_counter()]
     with bar(s.iterations + 1, "gradient evaluations", progress) as shown:
@@ -156,7 +166,7 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
             shown.update(1)
 
         iterations = wc.gradient_search(problem, *wc.starts_of(pool, s.starts), s.iterations, s.learning_rate,
-                                        callback, pool)
+                                        callback, pool, s.final_temperature, s.patience)
     times["gradient"] = stamps[-1] - stamps[0]
     steps = np.diff(stamps)
     run_time = float(np.mean(steps[1:]) * len(steps)) if len(steps) > 1 else times["gradient"]
@@ -170,7 +180,10 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     times["monte_carlo"] = time.perf_counter() - start
     frames.append(_points_frame(space, mc, scale, value, sim.seed + 1, np.arange(budget), method="monte_carlo",
                                 start=-1, iteration=-1, index=np.arange(budget)))
-    n_time = int(min(max(budget, round(budget * run_time / max(times["monte_carlo"], 1e-9))), 50 * budget))
+    # the search's time without compilation: the screening's later batches, its first at Monte Carlo's rate
+    searched_s = run_time + sum(batch_times[1:])
+    n_time = int(min(max(budget, s.screening + round(budget * searched_s / max(times["monte_carlo"], 1e-9))),
+                     50 * budget))
     if n_time > budget:
         start = time.perf_counter()
         extra = wc.sample(problem, "random", n_time, sim.seed + 1, s.screening, first=budget)
@@ -185,14 +198,19 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     meta = io.provenance(config.to_json(cfg), sim.seed, models=list(names))
     summ = search_report.search_summary(df, value, s.bound, times)
     feasible = int(np.isfinite(screened.hard).sum())
-    notes = [f"Worst case of the {what} over the config's scenario space: {s.screening} Sobol points "
-             f"screened, the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
-             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature} in "
-             f"{'the statistic' if s.detector == 'loe_detection' else 'log'} units), against plain Monte Carlo "
-             f"(random design) with the same number of simulations ({budget}) and "
-             f"with as many as run in the gradient search's time without compilation ({n_time}). A start whose "
-             f"run loses the event (no bound: {feasible} of {s.screening} screened runs have one) is replaced by the "
-             f"next best screened run that has it ({restarted} replacements). A gradient "
+    schedule = f" falling geometrically to {s.final_temperature}" if s.final_temperature > 0 else ""
+    notes = [f"Worst case of the {what} over the config's scenario space: {n_screened} Sobol points "
+             f"screened ({batches} batch(es) of {s.screening}"
+             f"{f', screened on until {s.pool} runs had the event or {s.screening_max} points' if s.pool else ''}), "
+             f"the {s.starts} worst started projected Adam ascent ({s.iterations} steps, learning rate "
+             f"{s.learning_rate} in the unit cube, smooth maximum over time at temperature {s.temperature}{schedule} "
+             f"in {'the statistic' if s.detector == 'loe_detection' else 'log'} units), against plain Monte Carlo "
+             f"(random design) with the same number of simulations ({budget}) and with as many as run in the "
+             f"search's time without compilation ({n_time}: the gradient steps and the screening's batches, its "
+             f"first at Monte Carlo's rate). A start whose "
+             f"run loses the event (no bound: {feasible} of {n_screened} screened runs have one) {s.patience} "
+             f"evaluation(s) in a row (backtracking with half steps before) is replaced by the next best screened "
+             f"run that has it ({restarted} replacements). A gradient "
              f"evaluation costs a forward and a backward pass. Run times include the compilation of the screening "
              f"and of the gradient function; Monte Carlo reuses the screening's compiled batch. "
              f"Values in {UNITS[s.detector]}.",
