@@ -21,7 +21,8 @@ def command(sub, name: str, func, summary: str, example: str | None, out: str, s
 
 
 def cluster(p):
-    """Where a campaign's chunks run (Dask distributed) and where compiled programs are kept."""
+    """Where a campaign's chunks (or the estimator runs of ``mcfdd probability``) run (Dask distributed) and where
+    compiled programs are kept."""
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDR", help="run the chunks on the Dask cluster of this scheduler, "
                        "e.g. tls://HOST:8786 (tcp:// only inside a trusted network)")
