@@ -43,6 +43,7 @@ def reduced(args, **extra) -> config.CampaignConfig:
     changes = {"campaign.duration_s": args.duration, "probability.samples": args.samples,
                "probability.budget": args.budget, "probability.target_cov": args.target_cov,
                "probability.chunk": args.chunk, "probability.seed": args.seeds[0], "probability.p0": args.p0,
+               "probability.max_levels": args.max_levels,
                "probability.repeats": args.repeats, "probability.airframe.view": "none"}
     if args.manoeuvre:
         changes["space.manoeuvre_kind"] = args.manoeuvre
@@ -109,6 +110,7 @@ def main():
     p.add_argument("--turbulence", nargs="*", default=["moderate"])
     p.add_argument("--samples", type=int, default=500)
     p.add_argument("--p0", type=float, default=0.1)
+    p.add_argument("--max-levels", type=int, default=12)
     p.add_argument("--repeats", type=int, default=4, help="estimator runs per stratum at least")
     p.add_argument("--budget", type=int, default=20000)
     p.add_argument("--target-cov", type=float, default=0.3)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from jax import device_get
-from jax.scipy.special import ndtr
+from scipy.stats import norm
 
 from mcfdd import columns, config, io
 from mcfdd.analysis import probability as normal_space, rare
@@ -273,7 +273,7 @@ def per_airframe(cfg: config.CampaignConfig, prep: tasks.Prepared, table: pd.Dat
         est = {(s, i): _scaled(e, 1.0 / _must_share(cfg, prep.problem, strata[s])) for (s, i), e in est.items()}
     space = prep.problem.space
     bounds = [(space.lo[space.names.index(n)], space.hi[space.names.index(n)]) for n in prep.axes]
-    values = [{n: lo + float(ndtr(t)) * (hi - lo) for n, (lo, hi), t in zip(prep.axes, bounds, theta)}
+    values = [{n: lo + float(norm.cdf(t)) * (hi - lo) for n, (lo, hi), t in zip(prep.axes, bounds, theta)}
               for theta in prep.points]
     rows = [{"stratum": s, "point": i, **values[i], "estimate": e.estimate, "cov": e.cov, "lo": e.interval[0],
              "hi": e.interval[1], "simulations": sum(r.n_simulations for r in runs[s, i]), "hits": e.hits,

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import ndtri
+from scipy.stats import norm
 
 from mcfdd import config
 from mcfdd.analysis import build, probability as normal_space, rare
@@ -53,7 +53,7 @@ def airframe_points(cfg: config.CampaignConfig, k: int) -> np.ndarray:
     ``points`` draws of N(0, I_k) from the seed (the quantile view)."""
     a = cfg.probability.airframe
     if a.view == "corner":
-        return rare.corners(k, float(ndtri(a.corner)))
+        return rare.corners(k, float(norm.ppf(a.corner)))
     key = jax.random.fold_in(jax.random.key(seed_of(cfg)), AIRFRAME_STREAM)
     return np.asarray(jax.random.normal(key, (a.points, k)), float)
 
