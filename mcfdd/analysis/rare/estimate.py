@@ -196,7 +196,8 @@ def repeated(estimates, confidence: float = 0.95) -> Estimate:
     sqrt(sum_r (delta_r p_r)^2) / (R p_hat), which trusts each run's own c.o.v., and, from R = 3 on
     with every run hit, the one the runs' spread gives: with s^2 the sample variance of ln p_r
     (p_r taken as log-normal), delta = sqrt((exp(s^2) - 1) / R). When the spread's is the larger, the
-    log-normal interval uses Student's t with R - 1 degrees of freedom. A within-run c.o.v. that
+    log-normal interval uses Student's t with R - 1 degrees of freedom (its upper end at most 1: the
+    runs estimate a probability). A within-run c.o.v. that
     understates (subset simulation's chains mixing slowly in a large d) is thus replaced by what the
     repeats show; the levels and failure points are the run's with most hits, all runs' points kept.
     """
@@ -222,8 +223,8 @@ def repeated(estimates, confidence: float = 0.95) -> Estimate:
         return mean
     spread = float(np.sqrt(np.expm1(np.var(np.log([r.estimate for r in runs]), ddof=1)) / len(runs)))
     cov, dof = (spread, len(runs) - 1.0) if spread > mean.cov else (mean.cov, float("inf"))
-    return dataclasses.replace(mean, cov=cov, dof=dof, kind="lognormal",
-                               interval=interval(mean.estimate, cov, confidence, "lognormal", dof))
+    lo, hi = interval(mean.estimate, cov, confidence, "lognormal", dof)
+    return dataclasses.replace(mean, cov=cov, dof=dof, kind="lognormal", interval=(lo, min(hi, 1.0)))
 
 
 def stratified(estimates, weights, confidence: float = 0.95, interval_kind: str = "delta") -> Estimate:
