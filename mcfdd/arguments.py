@@ -21,7 +21,8 @@ def command(sub, name: str, func, summary: str, example: str | None, out: str, s
 
 
 def cluster(p):
-    """Where a campaign's chunks run (Dask distributed) and where compiled programs are kept."""
+    """Where a campaign's chunks (or the estimator runs of ``mcfdd probability``) run (Dask distributed) and where
+    compiled programs are kept."""
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDR", help="run the chunks on the Dask cluster of this scheduler, "
                        "e.g. tls://HOST:8786 (tcp:// only inside a trusted network)")
@@ -34,3 +35,12 @@ def cluster(p):
         p.add_argument(flag, metavar="FILE", help=f"TLS {what} for a tls:// scheduler (default: Dask's configuration)")
     p.add_argument("--compile-cache", metavar="DIR|off", help="folder of JAX's persistent compilation cache, here "
                    "and on the workers (default ~/.cache/mcfdd/jax); 'off' to compile every time")
+
+
+def cluster_executor(args):
+    """The executor of the :func:`cluster` flags given (``mcfdd.campaign_executor``: a context manager; None
+    in process)."""
+    import mcfdd
+
+    return mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
+                                   args.connect_timeout)

@@ -11,7 +11,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from mcfdd.arguments import cluster, command
+from mcfdd.arguments import cluster, cluster_executor, command
 
 
 def _say(message: str):
@@ -72,8 +72,7 @@ def cmd_campaign(args) -> int:
     out = io.out_dir("campaign", args.config, args.out, new=not args.resume)
     try:
         _start_runtime()
-        with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
-                                     args.connect_timeout) as executor:
+        with cluster_executor(args) as executor:
             result = mcfdd.run_campaign(cfg, out=out, resume=args.resume, title=f"Campaign {Path(args.config).stem}",
                                         executor=executor, compile_cache=args.compile_cache)
     except KeyboardInterrupt:
@@ -93,8 +92,7 @@ def cmd_sensitivity(args) -> int:
     out = io.out_dir("sensitivity", args.config, args.out, new=not args.resume)
     try:
         _start_runtime()
-        with mcfdd.campaign_executor(args.scheduler, args.workers, args.tls_ca_file, args.tls_cert, args.tls_key,
-                                     args.connect_timeout) as executor:
+        with cluster_executor(args) as executor:
             result = mcfdd.sensitivity(cfg, out=out, resume=args.resume, executor=executor,
                                        compile_cache=args.compile_cache)
     except KeyboardInterrupt:
@@ -112,7 +110,8 @@ def cmd_probability(args) -> int:
     cfg = mcfdd.load_config(args.config, "campaign", flags.set_overrides(args.set))
     out = io.out_dir("probability", args.config, args.out)
     _start_runtime()
-    result = mcfdd.probability(cfg)
+    with cluster_executor(args) as executor:
+        result = mcfdd.probability(cfg, executor=executor, compile_cache=args.compile_cache)
     _written(result.save(out, f"Probability {Path(args.config).stem}"))
     _print([*result.lines(), f"summary: {out / 'summary.md'}"])
     return 0
@@ -223,9 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
                  "a new results/sensitivity-<config>[-N]", "sensitivity.samples=64")
     p.add_argument("--resume", action="store_true", help="continue the interrupted design runs in --out")
     cluster(p)
-    command(sub, "probability", cmd_probability, "how rare an event of a campaign is: per run, stratum and flight "
-             "hour by subset simulation, importance sampling or Monte Carlo ([probability] table)", "validation.toml",
-             "results/probability-<config>", "probability.budget=20000")
+    p = command(sub, "probability", cmd_probability, "how rare an event of a campaign is: per run, stratum, flight "
+                "hour and airframe by subset simulation, importance sampling or Monte Carlo ([probability] table)",
+                "validation.toml", "results/probability-<config>", "probability.budget=20000")
+    cluster(p)
     p = command(sub, "compare", cmd_compare, "paired comparison of two campaigns of one space (e.g. two FDDs): "
                  "McNemar's exact test per outcome, detection-time differences", None,
                  "results/compare-<a>-vs-<b>")

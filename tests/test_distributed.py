@@ -1,4 +1,5 @@
-"""Campaigns on Dask distributed: same table as one process, worker deaths, Ctrl-C, addresses and loopback.
+"""Campaigns and probability estimates on Dask distributed: same tables as one process, worker deaths, Ctrl-C,
+addresses and loopback.
 
 Also the design rows built by index (what lets a worker rebuild its chunk from the ids alone) and
 the persistent compilation cache. Every cluster and process started here is closed or killed in
@@ -85,6 +86,27 @@ def test_two_local_workers_give_the_in_process_table(local, reference):
     _same(reference, result.scenarios)
     assert result.workers["scenarios"].sum() == CAMPAIGN["scenarios"]
     assert len(result.workers) == 2 and (result.workers["scenario_steps_per_s"] > 0).all()
+
+
+def test_probability_on_two_local_workers_is_the_in_process_result(local):
+    """Two strata (turbulence), two airframe corners (kci_scale), two runs each: every table and point to the bit."""
+    cfg = mcfdd.load_config({
+        "campaign": {"duration_s": 1.2, "seed": 3},
+        "evaluation": {"settle_s": 0.5},
+        "fdd": {"loe": {"detection_tau": 0.004, "detection_contrast": 0.0, "detection_confirm_s": 0.0,
+                        "confirm_s": 0.2}},
+        "space": {"vcas_kt": [200.0, 360.0], "kci_scale": [0.9, 1.1], "turbulence": ["light", "moderate"],
+                  "fault_kind": "none", "manoeuvre_kind": "doublet", "t_start_s": [0.2, 1.0]},
+        "probability": {"samples": 100, "chunk": 50, "repeats": 2, "budget": 100,
+                        "airframe": {"axes": ["kci_scale"], "view": "corner"}}}, "campaign")
+    here = mcfdd.probability(cfg, progress=False)
+    there = mcfdd.probability(cfg, progress=False, executor=local)
+    for name in ("strata", "runs", "levels", "failures", "airframes"):
+        pd.testing.assert_frame_equal(getattr(here, name), getattr(there, name), check_exact=True)
+    assert len(here.runs) == 4 and len(here.airframes) == 4 and (here.runs["hits"] > 0).any()
+    np.testing.assert_array_equal(here.failure_points, there.failure_points)
+    assert (here.overall.estimate, here.overall.cov, here.overall.interval) == (
+        there.overall.estimate, there.overall.cov, there.overall.interval)
 
 
 @pytest.mark.filterwarnings("ignore:The balance properties of Sobol")

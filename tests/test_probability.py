@@ -6,7 +6,9 @@
   whose sign is the campaign's flag, on 2,048 runs and every event (short horizon, lowered thresholds);
 - exposure weights, the per-flight-hour rate and the [probability] table's errors;
 - the command end to end on a lowered threshold: subset simulation against plain Monte Carlo
-  (both intervals), the same numbers for the same seed, the files it writes.
+  (both intervals), the same numbers for the same seed, the files it writes;
+- the per-airframe view: corners at the configured quantiles, the worst one against plain Monte Carlo
+  of the space with those axes fixed there, and the quantile over drawn airframes as its order statistic.
 """
 
 import subprocess
@@ -19,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.stats import norm
 
 import mcfdd
 from helpers import SMALL, compiles
@@ -252,7 +255,8 @@ def test_subset_simulation_agrees_with_monte_carlo_and_repeats_to_the_bit(tmp_pa
     assert subset.overall.estimate == again.overall.estimate
     np.testing.assert_array_equal(subset.failure_points, again.failure_points)
     mc = mcfdd.probability(config.replace(cfg, {"probability.method": "mc", "probability.samples": 4000,
-                                                "probability.budget": 4000}), progress=False)
+                                                "probability.budget": 4000, "probability.repeats": 1}),
+                           progress=False)
     lo, hi = mc.overall.interval
     assert lo <= subset.overall.estimate <= hi
     assert subset.overall.interval[0] <= mc.overall.estimate <= subset.overall.interval[1]
@@ -277,14 +281,58 @@ def test_missed_detection_is_conditional_on_the_runs_that_must_be_detected():
     must = normal_space.must_fraction(workflow.problem_of(cfg)[0].nu_bank, "leakage", 0.0, 0.3)
     assert 0.0 < must < 1.0  # small leaks are nearest to the nominal model: not must-detect
     assert result.rate is None and set(result.groups) == {"leakage"}
-    assert result.overall.estimate == pytest.approx(result.overall.hits / 200 / must)
+    assert result.overall.n_simulations == 4 * 200  # four runs (repeats), their hits pooled
+    assert result.overall.estimate == pytest.approx(result.overall.hits / 800 / must)
     assert result.overall.interval[1] == pytest.approx(result.strata["hi"].iloc[0])
 
 
 def test_strata_share_one_compiled_program():
-    one = config.replace(tiny(), {"probability.samples": 100, "probability.budget": 100})
+    one = config.replace(tiny(), {"probability.samples": 100, "probability.budget": 100, "probability.repeats": 2})
     two = config.replace(one, {"space.turbulence": ["light", "moderate"]})
-    mcfdd.probability(one, progress=False)  # what does not depend on the limit state is compiled now
-    per_run = compiles(lambda: mcfdd.probability(one, progress=False))  # a new g: its programs again
+    mcfdd.probability(config.replace(one, {"probability.seed": 1}), progress=False)  # the rest is compiled now
+    per_run = compiles(lambda: mcfdd.probability(one, progress=False))  # a new config, a new g: its programs again
     assert per_run >= 1
+    assert compiles(lambda: mcfdd.probability(one, progress=False)) == 0  # the process keeps the last limit state
     assert compiles(lambda: mcfdd.probability(two, progress=False)) == per_run
+
+
+AIRFRAME = """
+[probability.airframe]
+axes = ["kci_scale", "kd_scale", "supply_pressure_scale"]
+view = "corner"
+corner = 0.95
+"""
+
+
+def test_per_airframe_view_at_the_worst_corner_and_as_a_quantile():
+    """kci_scale and kd_scale vary (supply pressure does not: left out). P(FA | corner) by plain Monte Carlo
+    against plain Monte Carlo of the space with those two axes fixed at the worst corner's values."""
+    cfg = config.replace(tiny(AIRFRAME), {"space.kci_scale": [0.8, 1.2], "space.kd_scale": [0.5, 1.5],
+                                          "probability.method": "mc", "probability.samples": 1000,
+                                          "probability.budget": 1000, "probability.repeats": 1})
+    result = mcfdd.probability(cfg, progress=False)
+    frame, view = result.airframes, result.airframe
+    r = norm.ppf(0.95)
+    assert len(frame) == 4 and view.points.tolist() == (r * np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]])).tolist()
+    unit = norm.cdf(view.points)
+    expected = {"kci_scale": 0.8 + 0.4 * unit[:, 0], "kd_scale": 0.5 + 1.0 * unit[:, 1]}
+    for name, values in expected.items():
+        np.testing.assert_allclose(frame[name], values, rtol=1e-6)
+    worst = int(np.argmax(frame["estimate"]))
+    assert view.worst == worst and result.strata["airframe_worst"].iloc[0] == frame["estimate"].max()
+    assert frame["estimate"].max() > frame["estimate"].min()  # the servo parameters matter here
+    assert result.airframe_rate.estimate == pytest.approx(frame["estimate"].max() * 3600 / (1.2 - 0.5))
+    fixed = config.replace(cfg, {"space.kci_scale": float(frame["kci_scale"][worst]),
+                                 "space.kd_scale": float(frame["kd_scale"][worst]), "probability.samples": 4000,
+                                 "probability.budget": 4000, "probability.airframe.view": "none"})
+    direct = mcfdd.probability(fixed, progress=False).overall
+    lo, hi = view.estimates[worst].interval
+    assert lo <= direct.estimate <= hi and direct.interval[0] <= view.estimates[worst].estimate <= direct.interval[1]
+    assert any("worst of 4 corners" in line for line in result.lines())
+    spread = mcfdd.probability(config.replace(cfg, {"probability.airframe.view": "quantile",
+                                                    "probability.airframe.points": 40,
+                                                    "probability.airframe.quantile": 0.5}), progress=False)
+    values = np.sort(spread.airframes["estimate"])
+    assert spread.airframe.value == values[19]  # the 20th of 40: the median order statistic
+    assert spread.airframe.interval[0] <= spread.airframe.value <= spread.airframe.interval[1]
+    assert "airframe_quantile" in spread.strata and any("0.5 quantile" in line for line in spread.lines())

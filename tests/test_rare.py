@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.stats import binomtest, kstest, multivariate_normal, norm, truncnorm
+from scipy.stats import binomtest, kstest, multivariate_normal, norm, t as student_t, truncnorm
 
 from mcfdd.analysis import rare
 from mcfdd.analysis.rare.estimate import interval
@@ -285,6 +285,65 @@ def test_per_airframe_probability_worst_corner_and_quantile():
     assert compiles.count == 0  # the same conditional problem as above: theta is traced
     assert spread.interval[0] <= norm.cdf(0.0 - c) <= spread.interval[1]
     assert spread.interval[0] <= spread.value <= spread.interval[1]
+
+
+def test_conditional_fixes_the_named_coordinates_anywhere_in_u():
+    def g(u):
+        return u @ jnp.arange(1.0, 6.0) + u[:, 0] * u[:, 3]
+
+    u = np.asarray(jax.random.normal(jax.random.key(3), (7, 5)))
+    index, free = (3, 1), [0, 2, 4]
+    cond = rare.exposure.Conditional(g, index)
+    for row in u:  # theta (the coordinates 3 and 1 in that order) set, the rest from v
+        np.testing.assert_array_equal(cond(jnp.asarray(u[:, free]), row[list(index)]),
+                                      g(jnp.asarray(np.where(np.isin(np.arange(5), index), row, u))))
+    with pytest.raises(ValueError, match="distinct coordinates"):
+        rare.airframes(g, 5, (1, 1), np.zeros((2, 2)), jax.random.key(0))
+
+
+def _estimate(p, cov, method="subset", kind="lognormal"):
+    return rare.Estimate(method, p, cov, (p / 2, p * 2), 0.95, kind, 1000, 10, failure_points=np.zeros((1, 2)),
+                         failure_margins=np.ones(1))
+
+
+def test_repeated_runs_take_the_larger_of_their_own_and_their_spreads_cov():
+    """Closed forms: Monte Carlo runs pool their hits exactly; runs that understate their c.o.v. get the spread's."""
+    mc = [rare.monte_carlo(Linear(2, beta=2.0), 2, jax.random.key(i), n=2000, batch=2000) for i in range(3)]
+    pooled = rare.repeated(mc)
+    hits = sum(e.hits for e in mc)
+    assert (pooled.hits, pooled.n_simulations, pooled.estimate) == (hits, 6000, hits / 6000)
+    ci = binomtest(hits, 6000).proportion_ci(0.95)
+    assert pooled.interval == pytest.approx((ci.low, ci.high))
+    values = np.array([1e-6, 4e-6, 2e-7, 8e-7])
+    tight = rare.repeated([_estimate(v, 0.1) for v in values])
+    s2 = np.var(np.log(values), ddof=1)
+    assert tight.estimate == pytest.approx(values.mean())
+    assert tight.cov == pytest.approx(np.sqrt(np.expm1(s2) / 4)) and tight.dof == 3
+    z = student_t.ppf(0.975, 3)
+    s = np.sqrt(np.log1p(tight.cov ** 2))
+    mean = values.mean()
+    assert tight.interval == pytest.approx((mean * np.exp(s * s / 2 - z * s), mean * np.exp(s * s / 2 + z * s)))
+    honest = rare.repeated([_estimate(v, 3.0) for v in values])  # their own c.o.v. is the larger: the delta method
+    assert honest.cov == pytest.approx(np.sqrt(np.sum((3.0 * values) ** 2)) / 4 / mean) and np.isinf(honest.dof)
+    two = rare.repeated([_estimate(v, 0.1) for v in values[:2]])  # too few runs for a spread
+    assert two.cov == pytest.approx(np.sqrt(np.sum((0.1 * values[:2]) ** 2)) / 2 / values[:2].mean())
+
+
+def test_repeated_subset_runs_cover_the_truth_at_their_confidence():
+    """40 seeds x 4 runs of n = 500 on the linear limit state at P = 1e-4 (d = 50)."""
+    beta = 3.719
+    truth = float(norm.sf(beta))
+    problem = Linear(50, beta=beta)
+    covered, logs, stated = 0, [], []
+    for seed in range(40):
+        runs = [rare.subset_simulation(problem, 50, jax.random.fold_in(jax.random.key(seed), r), n=500)
+                for r in range(4)]
+        pooled = rare.repeated(runs)
+        covered += pooled.covers(truth)
+        logs.append(np.log(pooled.estimate))
+        stated.append(np.sqrt(np.log1p(pooled.cov ** 2)))
+    assert coverage_consistent(covered, 40, CONFIDENCE)
+    assert 0.7 < np.std(logs, ddof=1) / np.mean(stated) < 1.4
 
 
 def test_bad_input_gets_a_clear_error():

@@ -35,7 +35,8 @@ SHRINK = {  # config file -> changes (a list keeps its first entries)
                          "optimiser": {"iterations": 2}, "training": 2, "validation": 1},
     "validation.toml": {"campaign": {"duration_s": 20.0}, "space": {"manoeuvre_kind": ["doublet"],
                                                                     "turbulence": ["moderate"]},
-                        "probability": {"samples": 50, "max_levels": 2, "budget": 50}},
+                        "probability": {"samples": 50, "max_levels": 2, "budget": 50, "repeats": 1,
+                                        "airframe": {"axes": ["kci_scale"]}}},
     "tune_loe.toml": {"tune": {"iterations": 2}, "training": {"scenarios": 8, "duration_s": 20.0},
                       "validation": {"scenarios": 8, "chunk_size": 8, "duration_s": 20.0}},
     "worst_case_stall.toml": {"search": {"screening": 8, "starts": 1, "iterations": 2}},
@@ -148,6 +149,7 @@ def test_the_probability_block_runs_as_written(scratch):
     result = names["result"]
     assert result.event == "false_alarm" and len(result.strata) == 1 and result.rate is not None
     assert result.overall.n_simulations == int(result.strata["simulations"].sum()) <= 50 + 2 * 45
+    assert len(result.airframes) == 2 and len(result.runs) == 1  # the two corners of kci_scale, one run each
     assert (scratch / "results" / "p" / "summary.md").is_file()
 
 

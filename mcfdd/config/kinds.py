@@ -224,6 +224,29 @@ class ExposureConfig(Section):
                     raise Invalid(f"{key}.{name}", f"{value!r} is not a fraction of flight time in [0, 1]")
 
 
+AIRFRAME_VIEWS = ("corner", "quantile", "none")
+
+
+class AirframeConfig(Section):
+    """The per-airframe view of ``mcfdd probability``: P(event | the parameters an aircraft keeps for life)."""
+
+    axes: tuple[str, ...] = spec(("kci_scale", "kd_scale", "supply_pressure_scale"),
+                           doc="range axes fixed per aircraft (those the space varies are used)")
+    view: choice(AIRFRAME_VIEWS) = spec("corner", doc="corner: at each of the 2^k corners, the worst reported; "
+                                        "quantile: at 'points' airframes drawn from the ranges, the 'quantile' "
+                                        "reported; none: not estimated")
+    corner: float = spec(0.99, lo=0.5, lo_open=True, hi=0.99999, doc="the corners put each axis at its (1 - corner) "
+                         "and corner quantiles of its range")
+    quantile: float = spec(0.9, lo=0.0, lo_open=True, hi=1.0, doc="the quantile over airframes reported (view "
+                           "quantile)")
+    points: int = spec(32, lo=2, hi=10_000, doc="airframes drawn (view quantile)")
+
+    def check(self):
+        for name in self.axes:
+            if name not in columns.COLUMN:
+                raise Invalid(f"axes.{name}", "not a scenario column")
+
+
 class ProbabilitySettings(Section):
     """How rare an event is (``mcfdd probability``): its per-run probability per stratum and per flight hour."""
 
@@ -233,7 +256,10 @@ class ProbabilitySettings(Section):
                                       "or plain Monte Carlo")
     target_cov: float = spec(0.3, lo=0.0, lo_open=True, hi=10.0, doc="repeat independent estimator runs per stratum "
                              "until their pooled coefficient of variation is below this (or the budget is spent)")
-    budget: int = spec(100_000, lo=1, hi=10**10, doc="simulations over all strata at most")
+    repeats: int = spec(4, lo=1, hi=10_000, doc="independent estimator runs per stratum at least; from 3 on, the "
+                        "stated c.o.v. is never below the one the spread of their ln p_hat gives")
+    budget: int = spec(100_000, lo=1, hi=10**10, doc="simulations over all strata at most (after the first 'repeats' "
+                       "runs of each stratum)")
     samples: int = spec(1000, lo=10, hi=10**7, doc="subset: samples per level; importance: samples; mc: runs of one "
                         "estimator run")
     p0: float = spec(0.1, lo=0.0, lo_open=True, hi=0.5, doc="subset: conditional probability of a level")
@@ -243,6 +269,7 @@ class ProbabilitySettings(Section):
     confidence: float = spec(0.95, lo=0.5, hi=0.999)
     seed: int | None = spec(None, lo=0, hi=SEED_MAX, doc="estimator keys; default campaign.seed")
     exposure: ExposureConfig = spec(ExposureConfig())
+    airframe: AirframeConfig = spec(AirframeConfig())
 
 
 class CampaignConfig(Scored):

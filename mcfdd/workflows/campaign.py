@@ -33,6 +33,7 @@ from mcfdd.workflows.common import (
     as_config,
     check_folder,
     dtype_of,
+    is_dask,
     load_bank,
     precision,
     replay_command,
@@ -147,7 +148,7 @@ def _chunk_plan(setup: CampaignSetup, executor, progress: bool) -> int:
                                  f"{resources.gib(table)} in this process, more than the "
                                  f"{resources.gib(available)} available; split the campaign (e.g. by seed)")
     room, where = available - table, "available here"
-    if _is_dask(executor):
+    if is_dask(executor):
         from mcfdd.workflows import cluster
 
         limit = cluster.worker_memory(executor)
@@ -465,10 +466,6 @@ def _layout(size: int, executor) -> str:
     return f"{used} device(s) x {size // used}"
 
 
-def _is_dask(executor) -> bool:
-    return type(executor).__module__.startswith("distributed")
-
-
 def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """The chunks run in process (``executor`` None), on a ``concurrent.futures.Executor`` or on a Dask client.
 
@@ -477,7 +474,7 @@ def _submit(executor, cfg, chunks, size: int, plan: build.DesignPlan, cache):
     """
     if executor is None:
         return ((ids, *chunk_task(cfg, ids, size, plan)) for ids in chunks), lambda: None
-    if _is_dask(executor):
+    if is_dask(executor):
         from mcfdd.workflows import cluster
 
         return cluster.submit(executor, chunk_task, cfg, chunks, size, plan, cache)

@@ -169,6 +169,11 @@ def _host_threads(client) -> dict:
     return threads
 
 
+def set_up(client, cache) -> None:
+    """Set up each worker of ``client`` before its first task, and those that join later (:class:`WorkerSetup`)."""
+    client.register_plugin(WorkerSetup(cache, _host_threads(client)), name=PLUGIN)
+
+
 def submit(client, task, cfg, chunks, size: int, plan, cache):
     """Chunks of a campaign as tasks of ``client``: (results in completion order, cancel function).
 
@@ -176,7 +181,7 @@ def submit(client, task, cfg, chunks, size: int, plan, cache):
     config and the design plan are sent once to every worker, each task carries only its ids.
     A task whose worker dies is rescheduled by Dask; one that raises is retried twice.
     """
-    client.register_plugin(WorkerSetup(cache, _host_threads(client)), name=PLUGIN)
+    set_up(client, cache)
     shared_cfg, shared_plan = client.scatter([cfg, plan], broadcast=True, hash=False)
     futures = {client.submit(task, shared_cfg, ids, size, shared_plan, pure=False, retries=2): ids for ids in chunks}
 

@@ -40,6 +40,11 @@ def as_config(cfg, kind: str):
     return cfg
 
 
+def is_dask(executor) -> bool:
+    """Whether ``executor`` is a Dask client (else None or a ``concurrent.futures.Executor``)."""
+    return type(executor).__module__.startswith("distributed")
+
+
 def dtype_of(precision: str):
     return np.float64 if precision == "float64" else np.float32
 

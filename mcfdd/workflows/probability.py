@@ -1,13 +1,19 @@
-"""How rare is an event of a campaign (``mcfdd probability``): per run, per stratum and per flight hour.
+"""How rare is an event of a campaign (``mcfdd probability``): per run, stratum, flight hour and airframe.
 
 The campaign's runs as points of a standard-normal space (:mod:`mcfdd.analysis.probability`),
 the event's signed margin as the limit state, and an estimator of :mod:`mcfdd.analysis.rare` per
-stratum (each combination of the space's categorical axes), repeated with independent keys until
-the pooled coefficient of variation reaches ``probability.target_cov`` or the stratum's share of
-``probability.budget`` is spent. Strata are combined with the design's equal shares (the
-campaign's per-run probability) and, for the events of fault-free runs, with the exposure
-weights into a rate per flight hour, lambda = sum_s w_s p_s 3600 / T_scored
-(:func:`mcfdd.analysis.rare.per_flight_hour`).
+stratum (each combination of the space's categorical axes): ``probability.repeats`` independent
+runs, then more until the pooled coefficient of variation reaches ``probability.target_cov`` or the
+stratum's share of ``probability.budget`` is spent. The runs are pooled by
+:func:`mcfdd.analysis.rare.repeated`: their mean, with a c.o.v. never below what the spread of their
+ln p_hat shows (a within-run c.o.v. can understate: subset simulation's chains mix slowly in
+thousands of noise coordinates). Strata are combined with the design's equal shares (the campaign's
+per-run probability) and, for the events of fault-free runs, with the exposure weights into a rate
+per flight hour, lambda = sum_s w_s p_s 3600 / T_scored (:func:`mcfdd.analysis.rare.per_flight_hour`).
+The per-airframe view fixes the parameters an aircraft keeps for life (``[probability.airframe]``)
+at corners or drawn airframes (:mod:`mcfdd.analysis.rare.exposure`). Every estimator run is a task
+(:mod:`mcfdd.workflows.probability_tasks`) run in process, on an executor or on Dask, with the
+same result.
 """
 
 from __future__ import annotations
@@ -16,16 +22,20 @@ import dataclasses
 import math
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
+from jax import device_get
+from scipy.stats import norm
 
 from mcfdd import columns, config, io
-from mcfdd.analysis import build, probability as normal_space, rare
+from mcfdd.analysis import probability as normal_space, rare
 from mcfdd.progress import note
-from mcfdd.workflows.common import as_config, dtype_of, load_bank, precision
+from mcfdd.workflows import probability_tasks as tasks
+from mcfdd.workflows.common import as_config, dtype_of, precision
 from mcfdd.workflows.probability_report import lines, markdown
+from mcfdd.workflows.probability_tasks import problem_of, seed_of
+
+__all__ = ["ProbabilityResult", "exposure_weights", "probability", "problem_of"]
 
 
 @dataclasses.dataclass
@@ -46,6 +56,13 @@ class ProbabilityResult:
         failure_points: (rows, d) their standard-normal coordinates (parameters, initial and step
             normals): :meth:`replay` gives their time histories.
         notes, meta: what was run and the assumptions; provenance.
+        runs: one row per estimator run on a stratum's space: its own estimate, c.o.v. and interval,
+            simulations, hits, levels and the lineages of its final level.
+        airframes: one row per stratum and airframe point (the per-airframe axes' values) with
+            P(event | those values), pooled over ``repeats`` runs; empty when not estimated.
+        airframe: the strata combined at each airframe point (:class:`~mcfdd.analysis.rare.Airframes`:
+            ``estimates[worst]`` the worst, ``value`` and ``interval`` the quantile), or None.
+        airframe_rate: per flight hour at the worst corner (fault-free events, corner view), or None.
     """
 
     event: str
@@ -62,6 +79,10 @@ class ProbabilityResult:
     problem: normal_space.Problem | None = None
     args: list | None = None
     precision: str = "float32"
+    runs: pd.DataFrame = dataclasses.field(default_factory=pd.DataFrame)
+    airframes: pd.DataFrame = dataclasses.field(default_factory=pd.DataFrame)
+    airframe: rare.Airframes | None = None
+    airframe_rate: rare.Estimate | None = None
 
     def lines(self) -> list[str]:
         """What the terminal shows."""
@@ -71,15 +92,19 @@ class ProbabilityResult:
         """Time histories (PlantOutputs, FddOutputs; leading axis steps) of failure point ``i``."""
         stratum = int(self.failures["stratum"].iloc[i])
         with precision(self.precision):
-            return jax.device_get(normal_space.histories(self.problem, self.failure_points[i], self.args[stratum]))
+            return device_get(normal_space.histories(self.problem, self.failure_points[i], self.args[stratum]))
 
     def save(self, out, title: str = "Probability") -> list[Path]:
-        """Write strata.parquet, levels.parquet, failures.parquet, failure_points.npy and summary.md."""
+        """Write strata.parquet, runs.parquet, levels.parquet, failures.parquet, failure_points.npy, summary.md
+        and, with the per-airframe view, airframes.parquet."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         points = out / "failure_points.npy"
         np.save(points, self.failure_points)
         return [io.write_table(self.strata, out / "strata.parquet", self.meta),
+                io.write_table(self.runs, out / "runs.parquet", self.meta),
+                *([io.write_table(self.airframes, out / "airframes.parquet", self.meta)]
+                  if not self.airframes.empty else []),
                 io.write_table(self.levels, out / "levels.parquet", self.meta),
                 io.write_table(self.failures, out / "failures.parquet", self.meta), points,
                 io.write_text(out / "summary.md", markdown(title, self))]
@@ -105,34 +130,6 @@ def exposure_weights(cfg: config.CampaignConfig, strata: list[dict]) -> np.ndarr
               if a.kind in ("values", "choices")}
     w = np.array([math.prod(shares[name][value] for name, value in s.items()) for s in strata])
     return w / w.sum()
-
-
-def _divisor(n: int, most: int) -> int:
-    """The largest divisor of n not above ``most``."""
-    return max(b for b in range(1, min(n, most) + 1) if n % b == 0)
-
-
-def _run_estimator(g, d: int, key, p, args) -> rare.Estimate:
-    common = {"keep": p.keep, "confidence": p.confidence, "args": (args,)}
-    if p.method == "subset":
-        return rare.subset_simulation(g, d, key, n=p.samples, p0=p.p0, max_levels=p.max_levels, chunk=p.chunk,
-                                      **common)
-    batch = _divisor(p.samples, p.chunk)
-    if p.method == "importance":
-        return rare.importance_sampling(g, d, key, n=p.samples, batch=batch, **common)
-    return rare.monte_carlo(g, d, key, n=p.samples, batch=batch, **common)
-
-
-def pooled(runs: list[rare.Estimate], confidence: float) -> rare.Estimate:
-    """The mean of independent estimator runs, with its c.o.v. and interval (one run: itself)."""
-    if len(runs) == 1:
-        return runs[0]
-    kind = "delta" if all(r.reached and r.hits > 0 and np.isfinite(r.cov) for r in runs) else "union"
-    mean = rare.combine(runs, np.full(len(runs), 1.0 / len(runs)), confidence, kind)
-    best = max(runs, key=lambda r: r.hits)
-    return dataclasses.replace(mean, method=runs[0].method, levels=best.levels,
-                               failure_points=np.concatenate([r.failure_points for r in runs]),
-                               failure_margins=np.concatenate([r.failure_margins for r in runs]))
 
 
 def _scaled(e: rare.Estimate, c: float) -> rare.Estimate:
@@ -174,102 +171,146 @@ def check_event(cfg: config.CampaignConfig, fault_kinds) -> None:
                                  f"{' or '.join(fault_kinds)}, and space.fault_kind gives {', '.join(kinds)}")
 
 
-def probability(cfg, progress: bool = True) -> ProbabilityResult:
-    """P(event) per run of a campaign's space, per stratum and per flight hour (module docstring).
+def probability(cfg, progress: bool = True, executor=None, compile_cache=None) -> ProbabilityResult:
+    """P(event) per run of a campaign's space, per stratum, per flight hour and per airframe (module docstring).
 
     Args:
         cfg: a 'campaign' config (:func:`mcfdd.load_config`) with an optional ``[probability]``
             table, or a TOML path or dict of one.
         progress: a line per estimator run on stderr; False for silence.
+        executor: None to run the estimator runs in this process, a ``concurrent.futures.Executor``
+            or a Dask client (:func:`mcfdd.campaign_executor`): the same result to the last bit.
+        compile_cache: the Dask workers' compile-cache folder (None: their user cache, 'off': none).
 
     Returns:
         A :class:`ProbabilityResult`.
     """
     cfg = as_config(cfg, "campaign")
     with precision(cfg.campaign.precision):
-        return _probability(cfg, progress)
+        return _probability(cfg, progress, (executor, compile_cache))
 
 
-def problem_of(cfg: config.CampaignConfig) -> tuple[normal_space.Problem, tuple]:
-    """The limit state's problem of a campaign config, and the bank's model names."""
+def _probability(cfg: config.CampaignConfig, progress: bool, where) -> ProbabilityResult:
     c, p = cfg.campaign, cfg.probability
-    dtype = dtype_of(c.precision)
-    model = build.plant_model(cfg.plant)
-    bank, names = load_bank(cfg.fdd, dtype)
-    r_arm = model.actuator.r_arm_m
-    space = normal_space.Space.of(cfg.space.axes, cfg.plant.aircraft.max_mach,
-                                   normal_space.noise_dims(model), c.n_steps)
-    # the limit state closes over plant and FDD: their NumPy leaves become JAX arrays (traced indexing)
-    model, fdd_params = jax.tree.map(lambda x: jnp.asarray(x) if isinstance(x, np.ndarray) else x,
-                                     (model, build.fdd_params(cfg.fdd, bank, r_arm)))
-    problem = normal_space.Problem(model, fdd_params, build.settings(cfg.evaluation, r_arm),
-                                    np.asarray(bank.nu), space, normal_space.EVENTS[p.event][1], c.dt_s, c.substeps,
-                                    normal_space.manoeuvre_codes(cfg.space.axes))
-    return problem, names
-
-
-def _probability(cfg: config.CampaignConfig, progress: bool) -> ProbabilityResult:
-    c, p = cfg.campaign, cfg.probability
-    seed = c.seed if p.seed is None else p.seed
     flag, margin, fault_kinds = normal_space.EVENTS[p.event]
     check_event(cfg, fault_kinds)
-    dtype = dtype_of(c.precision)
-    problem, names = problem_of(cfg)
-    space = problem.space
-    strata = normal_space.strata(cfg.space.axes, fault_kinds)
-    g = normal_space.limit_state(problem)
+    prep = tasks.prepared(cfg)
+    problem, space, strata = prep.problem, prep.problem.space, prep.strata
     share = max(p.budget // len(strata), 1)
     note(f"P({p.event}) by {p.method}: {len(strata)} strata, d = {space.d} coordinates ({space.k} parameters, "
-         f"{space.init_dim} + {space.n_steps} x {space.step_dim} normals); {c.duration_s} s runs; budget {p.budget} "
-         f"simulations ({share} per stratum), target c.o.v. {p.target_cov}", progress)
-    estimates, args_list, level_rows, failure_rows, points, strata_rows = [], [], [], [], [], []
-    base_key = jax.random.key(seed)
-    for s, stratum in enumerate(strata):
-        args = normal_space.stratum_args(cfg.space.axes, stratum, dtype)
-        args_list.append(args)
-        key, runs, spent = jax.random.fold_in(base_key, s), [], 0
-        label = ", ".join(f"{k}={v}" for k, v in stratum.items()) or "the space"
-        while True:
-            run = _run_estimator(g, space.d, jax.random.fold_in(key, len(runs)), p, args)
-            runs.append(run)
-            spent += run.n_simulations
-            for j, level in enumerate(run.levels):
-                level_rows.append({"stratum": s, "run": len(runs) - 1, "level": j, **level._asdict()})
-            est = pooled(runs, p.confidence)
-            note(f"  stratum {s + 1}/{len(strata)} ({label}) run {len(runs)}: p = {run.estimate:.3g} "
-                 f"(pooled {est.estimate:.3g}, c.o.v. {est.cov:.2f}), {len(run.levels)} levels, "
-                 f"{run.n_simulations} simulations", progress)
-            if est.cov <= p.target_cov or spent + run.n_simulations > share:
-                break
-        if p.event == "missed_detection":
-            est = _scaled(est, 1.0 / _must_share(cfg, problem, stratum))
-        estimates.append(est)
-        strata_rows.append({"stratum": s, **stratum, "estimate": est.estimate, "cov": est.cov,
-                            "lo": est.interval[0], "hi": est.interval[1], "simulations": spent, "hits": est.hits,
-                            "runs": len(runs), "levels": len(est.levels), "reached": est.reached})
+         f"{space.init_dim} + {space.n_steps} x {space.step_dim} normals); {c.duration_s} s runs; at least "
+         f"{p.repeats} runs per stratum, then to c.o.v. {p.target_cov} within {p.budget} simulations ({share} per "
+         f"stratum){'' if where[0] is None else ' on ' + type(where[0]).__name__}", progress)
+    runs: dict[int, list] = {s: [] for s in range(len(strata))}
+    todo = [(s, r, -1) for s in runs for r in range(p.repeats)]
+    while todo:
+        for (s, r, _), run in zip(todo, tasks.run_tasks(cfg, todo, *where)):
+            runs[s].append(run)
+            est = rare.repeated(runs[s], p.confidence)
+            note(f"  stratum {s + 1}/{len(strata)} ({_label(strata[s])}) run {r + 1}: p = {run.estimate:.3g} "
+                 f"(c.o.v. {run.cov:.2f}; pooled {est.estimate:.3g}, c.o.v. {est.cov:.2f}), {len(run.levels)} "
+                 f"levels, {run.n_simulations} simulations", progress)
+        todo = [(s, len(rs), -1) for s, rs in runs.items()
+                if rare.repeated(rs, p.confidence).cov > p.target_cov
+                and sum(r.n_simulations for r in rs) + rs[-1].n_simulations <= share]
+    estimates = [rare.repeated(runs[s], p.confidence) for s in runs]
+    if p.event == "missed_detection":
+        estimates = [_scaled(e, 1.0 / _must_share(cfg, problem, stratum)) for e, stratum in zip(estimates, strata)]
+    table = pd.DataFrame([{"stratum": s, **stratum, "estimate": e.estimate, "cov": e.cov, "lo": e.interval[0],
+                           "hi": e.interval[1], "simulations": sum(r.n_simulations for r in runs[s]), "hits": e.hits,
+                           "runs": len(runs[s]), "levels": len(e.levels), "reached": e.reached}
+                          for s, (stratum, e) in enumerate(zip(strata, estimates))])
+    run_rows = [{"stratum": s, "run": r, "estimate": e.estimate, "cov": e.cov, "lo": e.interval[0],
+                 "hi": e.interval[1], "simulations": e.n_simulations, "hits": e.hits, "levels": len(e.levels),
+                 "lineages": e.levels[-1].lineages if e.levels else 0, "reached": e.reached}
+                for s, rs in runs.items() for r, e in enumerate(rs)]
+    level_rows = [{"stratum": s, "run": r, "level": j, **level._asdict()}
+                  for s, rs in runs.items() for r, e in enumerate(rs) for j, level in enumerate(e.levels)]
+    failure_rows, points = [], []
+    for s, (stratum, est) in enumerate(zip(strata, estimates)):
         if len(est.failure_points):
             cols = acting({"fault_kind": cfg.values("fault_kind")[0], **stratum},
-                          normal_space.columns_at(space, est.failure_points, args))
+                          normal_space.columns_at(space, est.failure_points, prep.args[s]))
             for i, m in enumerate(est.failure_margins):
                 failure_rows.append({"stratum": s, **stratum, **{k: v[i] for k, v in cols.items()}, "margin": m,
                                      "beta": float(np.linalg.norm(est.failure_points[i])), "point": len(points)})
                 points.append(np.asarray(est.failure_points[i]))
-    table = pd.DataFrame(strata_rows)
     overall = _combined(estimates, p.confidence)
     kinds = [s.get("fault_kind", cfg.values("fault_kind")[0]) for s in strata]
     groups = ({k: _combined([e for e, kind in zip(estimates, kinds) if kind == k], p.confidence)
                for k in dict.fromkeys(kinds)} if p.event == "missed_detection" else {"all": overall})
-    rate, scored_s = None, c.duration_s - cfg.evaluation.settle_s
+    rate, weights, scored_s = None, None, c.duration_s - cfg.evaluation.settle_s
     if fault_kinds == ("none",):
         weights = exposure_weights(cfg, strata)
         table["exposure_weight"] = weights
         rate = per_flight_hour(estimates, weights, scored_s, p.confidence)
-    notes = _notes(cfg, space, scored_s, p, margin, flag)
-    meta = io.provenance(config.to_json(cfg), seed, models=list(names), event=p.event, method=p.method)
-    failures = pd.DataFrame(failure_rows)
-    return ProbabilityResult(p.event, p.method, overall, groups, rate, table, pd.DataFrame(level_rows), failures,
-                             np.asarray(points).reshape(len(points), space.d), notes, meta, problem, args_list,
-                             c.precision)
+    view = per_airframe(cfg, prep, table, weights, scored_s, where, progress)
+    notes = _notes(cfg, space, scored_s, p, margin, flag) + airframe_notes(cfg, prep)
+    meta = io.provenance(config.to_json(cfg), seed_of(cfg), models=list(prep.names), event=p.event, method=p.method)
+    return ProbabilityResult(p.event, p.method, overall, groups, rate, table, pd.DataFrame(level_rows),
+                             pd.DataFrame(failure_rows), np.asarray(points).reshape(len(points), space.d), notes, meta,
+                             problem, prep.args, c.precision, pd.DataFrame(run_rows), *view)
+
+
+def per_airframe(cfg: config.CampaignConfig, prep: tasks.Prepared, table: pd.DataFrame, weights, scored_s: float,
+                 where, progress: bool):
+    """P(event | the per-airframe parameters) at the airframe points (``[probability.airframe]``), ``repeats``
+    runs each per stratum: (one row per stratum and point, :class:`~mcfdd.analysis.rare.Airframes` of the strata
+    combined, the rate per flight hour at the worst point or None); ``table`` gains each stratum's worst
+    (corner view) or quantile. Empty and None without per-airframe axes. ``where``: (executor, compile cache)."""
+    p, a = cfg.probability, cfg.probability.airframe
+    if not prep.axes:
+        return pd.DataFrame(), None, None
+    m, strata = len(prep.points), prep.strata
+    note(f"per airframe ({', '.join(prep.axes)} fixed): {a.view} view, {m} airframes x {len(strata)} strata x "
+         f"{p.repeats} runs", progress)
+    todo = [(s, r, i) for s in range(len(strata)) for i in range(m) for r in range(p.repeats)]
+    runs: dict = {}
+    for (s, _, i), e in zip(todo, tasks.run_tasks(cfg, todo, *where)):
+        runs.setdefault((s, i), []).append(e)
+    est = {key: rare.repeated(rs, p.confidence) for key, rs in runs.items()}
+    if p.event == "missed_detection":
+        est = {(s, i): _scaled(e, 1.0 / _must_share(cfg, prep.problem, strata[s])) for (s, i), e in est.items()}
+    space = prep.problem.space
+    bounds = [(space.lo[space.names.index(n)], space.hi[space.names.index(n)]) for n in prep.axes]
+    values = [{n: lo + float(norm.cdf(t)) * (hi - lo) for n, (lo, hi), t in zip(prep.axes, bounds, theta)}
+              for theta in prep.points]
+    rows = [{"stratum": s, "point": i, **values[i], "estimate": e.estimate, "cov": e.cov, "lo": e.interval[0],
+             "hi": e.interval[1], "simulations": sum(r.n_simulations for r in runs[s, i]), "hits": e.hits,
+             "runs": len(runs[s, i])} for (s, i), e in est.items()]
+    q = a.quantile if a.view == "quantile" else None
+    name = "airframe_worst" if q is None else "airframe_quantile"
+    for s in range(len(strata)):
+        view = rare.exposure.summarise(prep.points, [est[s, i] for i in range(m)], q, p.confidence)
+        e = view.estimates[view.worst]
+        value, lo, hi = (e.estimate, *e.interval) if q is None else (view.value, *view.interval)
+        table.loc[s, [name, f"{name}_lo", f"{name}_hi"]] = value, lo, hi
+        if q is None:
+            table.loc[s, "airframe_worst_point"] = view.worst
+    combined = [_combined([est[s, i] for s in range(len(strata))], p.confidence) for i in range(m)]
+    view = rare.exposure.summarise(prep.points, combined, q, p.confidence)
+    rate = None
+    if weights is not None and q is None:
+        rate = per_flight_hour([est[s, view.worst] for s in range(len(strata))], weights, scored_s, p.confidence)
+    return pd.DataFrame(rows), view, rate
+
+
+def airframe_notes(cfg: config.CampaignConfig, prep: tasks.Prepared) -> list[str]:
+    a = cfg.probability.airframe
+    if not prep.axes:
+        return [f"Per airframe: not estimated (view {a.view!r}; none of {', '.join(a.axes) or 'no axes'} varies in "
+                f"the space)."]
+    how = (f"at the {len(prep.points)} corners that put each axis at its {1 - a.corner:g} and {a.corner:g} quantiles "
+           f"(the worst reported)" if a.view == "corner" else
+           f"at {len(prep.points)} airframes drawn from the ranges, the {a.quantile:g} quantile over them reported "
+           f"with its distribution-free interval")
+    return [f"Per airframe: {', '.join(prep.axes)} are fixed for an aircraft's life, so its false alarms are not "
+            f"independent across flights; P(event | these parameters) is estimated {how}, the other coordinates "
+            f"random as above (airframes.parquet)."]
+
+
+def _label(stratum: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in stratum.items()) or "the space"
 
 
 def _must_share(cfg: config.CampaignConfig, problem: normal_space.Problem, stratum: dict) -> float:

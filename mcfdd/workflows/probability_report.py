@@ -6,6 +6,8 @@ import pandas as pd
 
 from mcfdd.analysis import rare
 
+AIRFRAME_COLUMNS = ("stratum", "point", "estimate", "cov", "lo", "hi", "simulations", "hits", "runs")
+
 
 def _estimate_text(e: rare.Estimate, unit: str = "") -> str:
     bound = "" if e.reached else " (upper bound: the level cap was reached with no failure sample)"
@@ -23,7 +25,26 @@ def lines(result) -> list[str]:
         cls = rare.certification_class(result.rate)
         out.append(f"per flight hour: {_estimate_text(result.rate)}; AMC 25.1309 class whose limit the upper end "
                    f"meets: {cls or 'none (above 1e-5: minor only)'}")
-    return out
+    return out + airframe_lines(result)
+
+
+def airframe_lines(result) -> list[str]:
+    """The per-airframe view: the worst corner (with its rate per flight hour) or the quantile over airframes."""
+    view = result.airframe
+    if view is None:
+        return []
+    axes = [c for c in result.airframes.columns if c not in AIRFRAME_COLUMNS]
+    if not view.quantile == view.quantile:  # nan: the corner view
+        at = result.airframes[result.airframes["point"] == view.worst].iloc[0]
+        corner = ", ".join(f"{name}={at[name]:.4g}" for name in axes)
+        worst = _estimate_text(view.estimates[view.worst])
+        out = [f"per airframe, worst of {len(view.points)} corners ({corner}): {worst} per run"]
+        if result.airframe_rate is not None:
+            out.append(f"  per flight hour at that corner: {_estimate_text(result.airframe_rate)}")
+        return out
+    return [f"per airframe ({', '.join(axes)}), {view.quantile:g} quantile over {len(view.points)} airframes: "
+            f"{view.value:.3g} per run ({100 * result.overall.confidence:.0f} % interval [{view.interval[0]:.3g}, "
+            f"{view.interval[1]:.3g}])"]
 
 
 def _table(df: pd.DataFrame) -> str:
@@ -39,7 +60,9 @@ def _table(df: pd.DataFrame) -> str:
 def markdown(title: str, result) -> str:
     """summary.md: the estimates, the strata, the levels, the most probable failure points, the assumptions."""
     parts = [f"# {title}: P({result.event})\n", "\n".join(f"- {line}" for line in lines(result)) + "\n",
-             "## Strata\n", _table(result.strata), "## Levels (subset simulation)\n",
+             "## Strata\n", _table(result.strata), "## Estimator runs\n", _table(result.runs),
+             *(["## Per airframe\n", _table(result.airframes)] if not result.airframes.empty else []),
+             "## Levels (subset simulation)\n",
              _table(result.levels.head(60)) if not result.levels.empty else "(none)\n",
              "## Most probable failure points\n",
              "Rows of failures.parquet, smallest beta = ||u|| first; `point` is the row of failure_points.npy "

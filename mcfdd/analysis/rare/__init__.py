@@ -14,7 +14,8 @@ the simulations spent, the levels and the failure points found.
 - :func:`importance_sampling` around the design points found by damped HLRF with JAX gradients
   (Rackwitz and Fiessler 1978; Zhang and Der Kiureghian 1995);
 - :func:`monte_carlo`, the baseline, with exact intervals;
-- :func:`stratified` and :func:`combine` over strata, :func:`per_flight_hour` and the AMC 25.1309
+- :func:`repeated` pools independent runs (its c.o.v. checked by their spread), :func:`stratified` and
+  :func:`combine` over strata, :func:`per_flight_hour` and the AMC 25.1309
   classes, :func:`airframes` for P(F | parameters fixed per aircraft).
 
 Each estimator run is one compiled program (``lax`` loops over levels, chain steps and sample
@@ -22,7 +23,7 @@ batches; g is a static argument, so a second run with the same g, sizes and opti
 ``args``, compiles nothing) and gives the same estimate to the last bit for the same key.
 """
 
-from mcfdd.analysis.rare.estimate import Estimate, Level, combine, stratified
+from mcfdd.analysis.rare.estimate import Estimate, Level, combine, repeated, stratified
 from mcfdd.analysis.rare.exposure import (
                                           CATASTROPHIC,
                                           CLASSES,
@@ -41,4 +42,4 @@ from mcfdd.analysis.rare.subset import conditional_move, subset_simulation
 
 __all__ = ["CATASTROPHIC", "CLASSES", "HAZARDOUS", "MAJOR", "Airframes", "Conditional", "DesignPoints", "Estimate",
            "Level", "airframes", "certification_class", "combine", "conditional_move", "corners", "design_points",
-           "importance_sampling", "monte_carlo", "per_flight_hour", "stratified", "subset_simulation"]
+           "importance_sampling", "monte_carlo", "per_flight_hour", "repeated", "stratified", "subset_simulation"]

@@ -188,6 +188,45 @@ def combine(estimates, coefficients, confidence: float = 0.95, interval_kind: st
                     components=estimates, coefficients=coefficients)
 
 
+def repeated(estimates, confidence: float = 0.95) -> Estimate:
+    """The mean of R independent runs of one estimator on one problem, with a c.o.v. the runs' spread checks.
+
+    Plain Monte Carlo runs pool exactly: k = sum k_r hits in n = sum n_r runs, Clopper-Pearson.
+    Otherwise p_hat = mean_r p_r, and its c.o.v. is the larger of the delta method's
+    sqrt(sum_r (delta_r p_r)^2) / (R p_hat), which trusts each run's own c.o.v., and, from R = 3 on
+    with every run hit, the one the runs' spread gives: with s^2 the sample variance of ln p_r
+    (p_r taken as log-normal), delta = sqrt((exp(s^2) - 1) / R). When the spread's is the larger, the
+    log-normal interval uses Student's t with R - 1 degrees of freedom (its upper end at most 1: the
+    runs estimate a probability). A within-run c.o.v. that
+    understates (subset simulation's chains mixing slowly in a large d) is thus replaced by what the
+    repeats show; the levels and failure points are the run's with most hits, all runs' points kept.
+    """
+    runs = tuple(estimates)
+    if not runs:
+        raise ValueError("no estimator run to pool")
+    if len(runs) == 1:
+        return runs[0]
+    points = np.concatenate([r.failure_points for r in runs])
+    margins = np.concatenate([r.failure_margins for r in runs])
+    best = max(runs, key=lambda r: r.hits)
+    if all(r.kind == "clopper-pearson" for r in runs):
+        n, k = sum(r.n_simulations for r in runs), sum(r.hits for r in runs)
+        lo, hi = clopper_pearson(k, n, confidence)
+        return dataclasses.replace(best, estimate=k / n, cov=float(np.sqrt((1.0 - k / n) / k)) if k else float("inf"),
+                                   interval=(float(lo), float(hi)), confidence=confidence, n_simulations=n, hits=k,
+                                   failure_points=points, failure_margins=margins)
+    hit = all(r.reached and r.hits > 0 and np.isfinite(r.cov) and r.estimate > 0 for r in runs)
+    mean = combine(runs, np.full(len(runs), 1.0 / len(runs)), confidence, "delta" if hit else "union")
+    mean = dataclasses.replace(mean, method=runs[0].method, levels=best.levels, failure_points=points,
+                               failure_margins=margins, design_points=best.design_points)
+    if not hit or len(runs) < 3:
+        return mean
+    spread = float(np.sqrt(np.expm1(np.var(np.log([r.estimate for r in runs]), ddof=1)) / len(runs)))
+    cov, dof = (spread, len(runs) - 1.0) if spread > mean.cov else (mean.cov, float("inf"))
+    lo, hi = interval(mean.estimate, cov, confidence, "lognormal", dof)
+    return dataclasses.replace(mean, cov=cov, dof=dof, kind="lognormal", interval=(lo, min(hi, 1.0)))
+
+
 def stratified(estimates, weights, confidence: float = 0.95, interval_kind: str = "delta") -> Estimate:
     """P = sum_s w_s p_s over strata with probabilities w_s (non-negative, summing to 1)."""
     weights = np.asarray(weights, float)

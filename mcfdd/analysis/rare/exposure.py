@@ -89,18 +89,21 @@ def certification_class(rate: Estimate) -> str | None:
 
 @dataclasses.dataclass(frozen=True)
 class Conditional:
-    """g with its first ``parameters`` coordinates fixed: ``Conditional(g, k)(v, theta, *args)``.
+    """g with the coordinates ``index`` fixed: ``Conditional(g, index)(v, theta, *args)``.
 
-    v (n, d - k) the free coordinates, theta (k,) the fixed ones; equal objects hash alike, so
-    estimators compile once for every theta.
+    v (n, d - k) the free coordinates in their order, theta (k,) the fixed ones (coordinate
+    ``index[j]`` of u is theta[j]); equal objects hash alike, so estimators compile once for every theta.
     """
 
     g: Callable
-    parameters: int
+    index: tuple[int, ...]
 
     def __call__(self, v, theta, *args):
-        fixed = jnp.broadcast_to(jnp.asarray(theta, v.dtype), (v.shape[0], self.parameters))
-        return self.g(jnp.concatenate([fixed, v], axis=1), *args)
+        k = len(self.index)
+        d = k + v.shape[1]
+        fixed = jnp.broadcast_to(jnp.asarray(theta, v.dtype), (v.shape[0], k))
+        order = np.argsort(np.concatenate([np.asarray(self.index, int), np.setdiff1d(np.arange(d), self.index)]))
+        return self.g(jnp.concatenate([fixed, v], axis=1)[:, order], *args)
 
 
 class Airframes(NamedTuple):
@@ -140,28 +143,17 @@ def quantile_ranks(m: int, q: float, confidence: float) -> tuple[int, int]:
     return r, s
 
 
-def airframes(g, d: int, parameters: int, points, key, *, estimator=subset_simulation, quantile: float | None = None,
-              confidence: float = 0.95, args=(), **options) -> Airframes:
-    """P(g(theta, v) > 0 | theta) at each parameter point (module docstring).
+def parameter_index(parameters, d: int) -> tuple[int, ...]:
+    """The fixed coordinates: the first ``parameters`` (an int) or the given indices, distinct, in [0, d)."""
+    index = tuple(range(parameters)) if isinstance(parameters, (int, np.integer)) else tuple(int(i) for i in parameters)
+    if not index or len(set(index)) != len(index) or min(index) < 0 or max(index) >= d or len(index) >= d:
+        raise ValueError(f"the fixed parameters must be 1 to d - 1 distinct coordinates of u (d = {d}), got "
+                         f"{parameters!r}")
+    return index
 
-    Args:
-        g: batched limit state on the full u = (theta, v), (n, d) -> (n,).
-        d: dimension of u; the first ``parameters`` coordinates are theta.
-        points: (m, parameters) standard-normal parameter coordinates (:func:`corners`, or draws
-            from N(0, I_k) for a quantile).
-        key: point i uses ``fold_in(key, i)``.
-        estimator: :func:`subset_simulation` (default) or another estimator of this package.
-        quantile: q to report over the points (they must then be draws of N(0, I_k)).
-        confidence: of the estimators' and the quantile's intervals.
-        args: traced arrays passed to g after u; options: the estimator's keywords.
-    """
-    points = np.asarray(points, float)
-    if points.ndim != 2 or points.shape[1] != parameters or not 0 < parameters < d:
-        raise ValueError(f"parameter points must be (m, {parameters}) with 0 < {parameters} < d = {d}, "
-                         f"got shape {points.shape}")
-    cond = Conditional(g, parameters)
-    estimates = tuple(estimator(cond, d - parameters, jax.random.fold_in(key, i), confidence=confidence,
-                                args=(theta, *args), **options) for i, theta in enumerate(points))
+
+def summarise(points, estimates, quantile: float | None = None, confidence: float = 0.95) -> Airframes:
+    """:class:`Airframes` of per-point estimates: the worst point, and the q-quantile with its interval."""
     values = np.array([e.estimate for e in estimates])
     value, bounds = float("nan"), (float("nan"), float("nan"))
     if quantile is not None:
@@ -170,5 +162,31 @@ def airframes(g, d: int, parameters: int, points, key, *, estimator=subset_simul
         highs = np.sort([e.interval[1] for e in estimates])
         value = float(np.quantile(values, quantile, method="inverted_cdf"))
         bounds = (float(lows[r - 1]), float(highs[s - 1]))
-    return Airframes(points, estimates, int(np.argmax(values)), float("nan") if quantile is None else quantile,
-                     value, bounds)
+    return Airframes(np.asarray(points, float), tuple(estimates), int(np.argmax(values)),
+                     float("nan") if quantile is None else quantile, value, bounds)
+
+
+def airframes(g, d: int, parameters, points, key, *, estimator=subset_simulation, quantile: float | None = None,
+              confidence: float = 0.95, args=(), **options) -> Airframes:
+    """P(g(theta, v) > 0 | theta) at each parameter point (module docstring).
+
+    Args:
+        g: batched limit state on the full u = (theta, v), (n, d) -> (n,).
+        d: dimension of u.
+        parameters: the fixed coordinates theta: an int k (the first k) or their indices in u.
+        points: (m, k) standard-normal parameter coordinates (:func:`corners`, or draws
+            from N(0, I_k) for a quantile).
+        key: point i uses ``fold_in(key, i)``.
+        estimator: :func:`subset_simulation` (default) or another estimator of this package.
+        quantile: q to report over the points (they must then be draws of N(0, I_k)).
+        confidence: of the estimators' and the quantile's intervals.
+        args: traced arrays passed to g after u; options: the estimator's keywords.
+    """
+    index = parameter_index(parameters, d)
+    points = np.asarray(points, float)
+    if points.ndim != 2 or points.shape[1] != len(index):
+        raise ValueError(f"parameter points must be (m, {len(index)}), got shape {points.shape}")
+    cond = Conditional(g, index)
+    estimates = tuple(estimator(cond, d - len(index), jax.random.fold_in(key, i), confidence=confidence,
+                                args=(theta, *args), **options) for i, theta in enumerate(points))
+    return summarise(points, estimates, quantile, confidence)
