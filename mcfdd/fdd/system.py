@@ -124,7 +124,7 @@ class FddState(NamedTuple):
     confirm: tuple
     detect: tuple
     detect_min: jnp.ndarray  # least rejection margin over the current run of rejected samples
-    since_stall: jnp.ndarray
+    since_stall: jnp.ndarray  # time since the last stall identification (s; :func:`never` before the first)
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
     signal: stall.SignalState
