@@ -20,7 +20,8 @@ import tomli_w
 
 from mcfdd import cli, config
 from mcfdd.analysis import build, detection_tuning as dt, metrics
-from mcfdd.workflows.common import load_bank
+from mcfdd.fdd import system
+from mcfdd.workflows.common import load_bank, precision
 from mcfdd.workflows.tune import training_set
 
 DT_S = 0.01
@@ -264,3 +265,61 @@ def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path
     built, expected = (build.fdd_params(f, bank, r_arm).loe for f in (campaign.fdd, written))
     for a, b in zip(jax.tree_util.tree_leaves(built), jax.tree_util.tree_leaves(expected)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_run_without_stall_gives_a_finite_detection_tau_gradient():
+    # the stall-hold term of the rejection margin, at the time since a stall of a run that has had none, is
+    # finite with a finite derivative: the min's zero cotangent times it is 0, not nan (issue 22)
+    fdd = config.FddConfig()
+    bank, _ = load_bank(fdd, np.float64)
+    params = build.fdd_params(fdd, bank, 0.0525)
+    never = system.init(params, 0.0).since_stall
+    assert np.isfinite(never) and never + 1e3 == never and np.isfinite(never * never)
+    loe = params.loe
+
+    def margin(tau, since):
+        return system.rejection_margin(loe._replace(detection_tau=tau), 0.5, 0.5, 1.0, 0.1, since)
+
+    assert jax.grad(margin)(0.1, never) == pytest.approx(-1.0)
+    assert margin(0.1, never) == margin(0.1, np.inf)  # the margin itself is the one an infinite time gives
+    assert np.isnan(jax.grad(margin)(0.1, np.inf))  # what the infinite start gave
+
+
+FD_STEP = 1e-6  # central differences in the logarithms; the gap has kinks (a min of terms, the confirmation)
+FD_TOLERANCE = 1e-4  # |AD - FD| <= FD_TOLERANCE (|FD| + max |FD|) for every tuned parameter
+
+
+def test_gap_gradient_matches_central_differences_in_every_tuned_parameter(tmp_path):
+    # 32 runs of 5 s in float64, every parameter the tuner moves (pole and confirmation included), the
+    # gradient unmasked (jax.grad of the gap) and as the tuner gets it (gap_and_grad) against central
+    # differences of the smooth gap
+    with precision("float64"):
+        cfg = config.replace(config.load(config.TuneConfig, tiny(tmp_path)), {"training.scenarios": 32})
+        params, settings, data, n = problem(cfg)
+        columns = jax.device_get(dt.evaluate_columns(params, settings, data, DT_S))
+        must = np.array(columns["must_detect"])
+        assert n == 32 and must.sum() >= 4
+        theta = dt.initial(params, dt.names(params.loe, True, True))
+        assert set(theta) >= {"pole_1_s", "detection_tau", "detection_contrast", "detection_confirm_s"}
+        assert all(v.dtype == np.float64 for v in theta.values())
+
+        def gap(theta, params, settings, data, must):
+            b = dt.bounds(dt.apply(params, theta), settings, data, must, 0.005, DT_S)
+            return b["soft_detect"] - b["soft_free"]
+
+        value, _, grad = jax.device_get(dt.gap_and_grad(theta, params, settings, data, must, 0.005, DT_S))
+        raw = jax.device_get(jax.jit(jax.grad(gap))(theta, params, settings, data, must))
+        at = jax.jit(gap)
+        assert float(at(theta, params, settings, data, must)) == pytest.approx(float(value), abs=1e-14)
+        fd = {}
+        for name in theta:
+            up, down = dict(theta), dict(theta)
+            up[name], down[name] = theta[name] + FD_STEP, theta[name] - FD_STEP
+            fd[name] = float(at(up, params, settings, data, must) - at(down, params, settings, data, must)) / (
+                2 * FD_STEP)
+    scale = max(abs(v) for v in fd.values())
+    assert abs(fd["detection_tau"]) > 0.01 * scale  # the common threshold shift does move the gap
+    for name in theta:
+        assert np.isfinite(raw[name]), name
+        assert raw[name] == pytest.approx(grad[name], rel=1e-9, abs=1e-15), name
+        assert abs(grad[name] - fd[name]) <= FD_TOLERANCE * (abs(fd[name]) + scale), (name, grad[name], fd[name])

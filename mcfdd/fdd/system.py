@@ -128,7 +128,7 @@ class FddState(NamedTuple):
     confirm: tuple
     detect: tuple
     detect_min: jnp.ndarray  # least rejection margin over the current run of rejected samples
-    since_stall: jnp.ndarray
+    since_stall: jnp.ndarray  # time since the last stall identification (s; :func:`never` before the first)
     stall_xq: jnp.ndarray
     stall_xi: jnp.ndarray
     signal: stall.SignalState
@@ -209,6 +209,15 @@ def rejection_margin(loe: LoeParams, ratio0, contrast, theta_w, floor, since_sta
                                    decision.relative(since_stall, loe.stall_hold_s, loe.detection_tau)))
 
 
+def never(dtype):
+    """The time since the last stall identification (s) of a run that has had none: sqrt of the dtype's
+    largest float (1.8e19 s in float32), finite so that the stall-hold term of :func:`rejection_margin`
+    and its derivative in ``detection_tau`` stay finite (an infinite time gives an infinite derivative,
+    and the zero cotangent of the min not taken times it a NaN gradient), large enough that adding
+    sample times never changes it and that the term is never the least; its square stays finite."""
+    return jnp.sqrt(jnp.asarray(jnp.finfo(dtype).max, dtype))
+
+
 def init(params: FddParams, u0) -> FddState:
     """State for a start at rest (in equilibrium) at measured position u0."""
     n = params.loe.bank.k0.shape[0]
@@ -226,7 +235,7 @@ def init(params: FddParams, u0) -> FddState:
         confirm=decision.confirm_init(),
         detect=decision.confirm_init(),
         detect_min=jnp.zeros_like(u0),
-        since_stall=jnp.asarray(jnp.inf, u0.dtype),
+        since_stall=never(u0.dtype),
         stall_xq=residual.init(u0),
         stall_xi=jnp.zeros_like(u0),
         signal=stall.signal_init(u0),
