@@ -69,7 +69,8 @@ def main() -> None:
             for h in args.steps:
                 up, down = dict(theta), dict(theta)
                 up[name], down[name] = theta[name] + h, theta[name] - h
-                fd.append(float(at(up, params, settings, data, must) - at(down, params, settings, data, must)) / (2 * h))
+                diff = at(up, params, settings, data, must) - at(down, params, settings, data, must)
+                fd.append(float(diff) / (2 * h))
             print(f"| {name} | {float(grad[name]):.5g} | {float(raw[name]):.5g} | " + " | ".join(f"{x:.5g}" for x in fd)
                   + " |", flush=True)
 

@@ -136,11 +136,10 @@ def _search(cfg: config.WorstCaseConfig, progress: bool) -> WorstCaseResult:
     what = f"{'tau_f (26), largest' if s.bound == 'free' else 'tau_d (27), smallest'} {s.detector} bound"
     if s.min_load_fraction > 0:
         what += f" over runs reaching a peak hinge-load fraction of {s.min_load_fraction}"
+    refill = f" (screening refilled up to {s.screening_max} points for {s.pool} runs with the event)" if s.pool else ""
     note(f"worst-case search for {what}: {space.dim} continuous axes, {len(space.categorical)} categorical; "
          f"{sim.duration_s} s runs ({sim.n_steps} steps, {sim.precision}); budget "
-         f"{wc.budget(s.screening, s.starts, s.iterations)} simulations"
-         f"{f' (screening refilled up to {s.screening_max} points for {s.pool} runs with the event)' if s.pool else ''}",
-         progress)
+         f"{wc.budget(s.screening, s.starts, s.iterations)} simulations{refill}", progress)
     times, frames, batch_times = {}, [], []
 
     def rows(first, n):
