@@ -85,10 +85,18 @@ def refused(capsys, *argv) -> str:
     return lines[0]
 
 
+# ``python -m mcfdd.cli`` as a terminal's foreground job starts it: Ctrl-C raises KeyboardInterrupt. A process
+# started in the background by a shell without job control (as a test runner may be) inherits SIGINT ignored,
+# and Python keeps it ignored, as a background job should.
+AT_A_TERMINAL = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                 "runpy.run_module('mcfdd.cli', run_name='__main__', alter_sys=True)")
+
+
 def interrupted(cfg, out, after: str, delay_s: float, *flags, children: list | None = None):
-    """``mcfdd campaign`` in its own process (``flags``, default ``--compile-cache off``), SIGINT ``delay_s`` after
-    the stderr line starting with ``after`` (None: after the start); ``children`` gets its child processes then."""
-    proc = subprocess.Popen([sys.executable, "-m", "mcfdd.cli", "campaign", str(cfg), "--out", str(out),
+    """``mcfdd campaign`` in its own process (``flags``, default ``--compile-cache off``) with Ctrl-C as at a
+    terminal, SIGINT ``delay_s`` after the stderr line starting with ``after`` (None: after the start); ``children``
+    gets its child processes then."""
+    proc = subprocess.Popen([sys.executable, "-c", AT_A_TERMINAL, "campaign", str(cfg), "--out", str(out),
                              *(flags or ("--compile-cache", "off"))], stderr=subprocess.PIPE,
                             stdout=subprocess.DEVNULL, text=True)
     seen = []
