@@ -101,8 +101,10 @@ def dask_cluster(scheduler: str | None = None, workers: int | None = None, secur
         # The workers would inherit this process's device count; each gets its share of the cores instead.
         env = {"XLA_FLAGS": devices.xla_flags(local_devices(workers))}
         note(f"campaign: starting a local Dask cluster of {workers} worker process(es)", True)
+        # Worker logs silenced up to CRITICAL: a task's error reaches the client as its exception, and an
+        # interrupt that closes the scheduler under a worker's heartbeat made the worker log a traceback.
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None, silence_logs=logging.ERROR, env=env) as local, \
+                          dashboard_address=None, silence_logs=logging.CRITICAL, env=env) as local, \
                 Client(local) as client:
             try:
                 yield client
