@@ -435,6 +435,41 @@ def test_bad_stall_gate_values_are_named(key, value, message):
         config.load_config(CONFIGS / "stall_campaign.toml", overrides={f"fdd.stall.{key}": value})
 
 
+@pytest.mark.parametrize("key, value, message", [
+    ("identification_tau_deg", -0.5, "-0.5 is outside the allowed range [0.0, inf)"),
+    ("identification_residual_deg", -0.1, "-0.1 is outside the allowed range [0.0, inf)"),
+    ("identification_residual_deg", "small", "expected a number, got string 'small'"),
+    ("identification_threshold_deg", 0.7, "unknown key"),
+])
+def test_bad_identification_gate_values_are_named(key, value, message):
+    """The stall identification gate: a bad value or a misspelt key ends with one line naming the key."""
+    with pytest.raises(config.ConfigError, match=re.escape(f"fdd.stall.{key}: {message}")):
+        config.load_config(CONFIGS / "stall_campaign.toml", overrides={f"fdd.stall.{key}": value})
+
+
+def test_identification_gate_off_by_default_and_built_only_when_on():
+    """Both keys 0 (the default) build no identification gate; either one builds it in rod units, its theta threshold
+    the detector's tau where identification_tau_deg is 0 and no residual condition where identification_residual_deg
+    is 0."""
+    from mcfdd.fdd import lpv
+
+    bank = lpv.from_dict(io.load_bank_dict(), dtype=np.float64)[0]
+    r_arm = 0.0525
+    deg = math.radians(1.0) * r_arm
+
+    def gate(**keys):
+        cfg = config.load_config(CONFIGS / "fault_free.toml",
+                                 overrides={f"fdd.stall.{k}": v for k, v in keys.items()})
+        return build.fdd_params(cfg.fdd, bank, r_arm).stall.identification
+
+    assert gate() is None
+    only_tau = gate(identification_tau_deg=0.7)
+    assert only_tau.tau == pytest.approx(0.7 * deg, rel=1e-12) and only_tau.residual_min_m is None
+    only_residual = gate(identification_residual_deg=0.3, tau_deg=1.2)
+    assert only_residual.tau == pytest.approx(1.2 * deg, rel=1e-12)
+    assert only_residual.residual_min_m == pytest.approx(0.3 * deg, rel=1e-12)
+
+
 def test_stall_gate_off_by_default_and_built_only_when_on():
     """A config without the gate builds none (so its campaigns are those of before); stall_campaign.toml ships it at
     0.5; a fraction builds it in rod units."""

@@ -1010,3 +1010,104 @@ def test_stall_gate_hides_a_saturated_slew_not_a_stall(bank):
     stop = int(np.argmax(stopped - noise >= 12.0 * DEG_M))
     fired = np.asarray(run_stall_detector(on, u_c, stopped)[1]) >= tau
     assert not fired[:stop].any() and fired[stop:stop + 10].any() and fired[stop + 10:].all()
+
+
+# ---------------------------------------------------------------------------------------------
+# Identification gate of the stall identification
+
+def identification_reference(theta, r, u, tau, residual_min):
+    """The identification gate written out in numpy: open where theta >= tau and (unless residual_min is None) the
+    outward residual -sgn(u) r >= residual_min; its margin the lesser of the two comparisons, each relative."""
+    opened = theta >= tau
+    margin = (theta - tau) / tau
+    if residual_min is not None:
+        outward = -np.sign(u) * r
+        opened &= outward >= residual_min
+        margin = np.minimum(margin, (outward - residual_min) / residual_min)
+    return opened, margin
+
+
+@pytest.mark.parametrize("residual_min_deg", [None, 0.3])
+def test_identification_gate_against_a_numpy_reference(residual_min_deg):
+    """The gate's margin equals the numpy reference on hand-made residual histories (theta, r and u drawn over both
+    signs, a stalled rod's residual opposite to u among them), and its sign is the gate's flag: open exactly where
+    the margin is not negative."""
+    rng = np.random.default_rng(31)
+    n = 2000
+    u = rng.uniform(-25.0, 25.0, n) * DEG_M
+    r = rng.uniform(-1.5, 1.5, n) * DEG_M
+    theta = np.abs(r) + rng.uniform(0.0, 1.0, n) * DEG_M
+    residual_min = None if residual_min_deg is None else residual_min_deg * DEG_M
+    gate = stall.IdentificationGate(0.7 * DEG_M, residual_min)
+    margin = np.asarray(jax.jit(stall.identification_margin)(gate, theta, r, u))
+    opened, ref_margin = identification_reference(theta, r, u, gate.tau, residual_min)
+    np.testing.assert_allclose(margin, ref_margin, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(margin >= 0.0, opened)
+    assert 0.1 < opened.mean() < 0.9
+    if residual_min is not None:  # the residual's sign decides: the same |r| of the other sign closes it
+        flipped = np.asarray(stall.identification_margin(gate, theta, -r, u)) >= 0.0
+        assert not (flipped & opened & (np.abs(r) >= residual_min)).any()
+
+
+def identification_params(bank, **keys):
+    return build.fdd_params(FddConfig(stall=StallDetectionConfig(**keys)), bank, r_arm_m=R_ARM_M)
+
+
+@jax.jit
+def run_identification(params, u_c, u):
+    """system.step over a trace -> (theta_stall, eta_signal, eta_model, eta_signal_margin, eta_model_margin)."""
+    def body(state, inp):
+        c, m, t = inp
+        state, out = system.step(params, state, c, m, VCAS_M_S, ALT_M, t, DT_S)
+        return state, (out.theta_stall, out.eta_signal, out.eta_model, out.eta_signal_margin, out.eta_model_margin)
+    return jax.lax.scan(body, system.init(params, u[0]), (u_c, u, np.arange(u.size) * DT_S))[1]
+
+
+def test_identification_gate_identifies_a_weak_stall_within_the_window(bank):
+    """A weak stall: the command ramps at 10 deg/s to 21 deg, the rod (first-order, 25 1/s) stops at 20 deg, 1 deg
+    short of it (0.05 mm of sensor noise). The paper's rule (iota = [theta >= 1 deg] opens (32)-(35)) identifies it
+    more than 0.5 s after the stop; with the gate (theta >= 0.6 deg and the outward residual >= 0.3 deg) within
+    0.35 s. Both keys 0 build no gate. The eta margins' signs are the eta flags in both."""
+    off = identification_params(bank)
+    on = identification_params(bank, identification_tau_deg=0.6, identification_residual_deg=0.3)
+    assert off.stall.identification is None and on.stall.identification is not None
+    n = 200
+    t = np.arange(n) * DT_S
+    u_c = np.clip(15.0 + 10.0 * (t - 0.2), 15.0, 21.0) * DEG_M
+    x, rod = 15.0 * DEG_M, []
+    for c in u_c:
+        rod.append(x)
+        x = min(x + (1.0 - math.exp(-25.0 * DT_S)) * (c - x), 20.0 * DEG_M)
+    rod = np.array(rod)
+    u = rod + np.random.default_rng(5).normal(0.0, 0.05e-3, n)
+    stop = t[np.argmax(rod >= 20.0 * DEG_M - 1e-12)]
+    first = {}
+    for name, params in (("off", off), ("on", on)):
+        theta, eta_signal, eta_model, m_signal, m_model = (np.asarray(a) for a in run_identification(params, u_c, u))
+        np.testing.assert_array_equal(m_signal >= 0.0, eta_signal)
+        np.testing.assert_array_equal(m_model >= 0.0, eta_model)
+        assert eta_signal.any()
+        first[name] = t[np.argmax(eta_signal)] - stop
+    assert first["off"] > 0.5 and 0.0 < first["on"] <= 0.35
+
+
+def test_identification_gate_residual_ignores_the_memory_of_a_stall(bank):
+    """After a stall (rod stopped at 15 deg, command 25 deg, 0.2-1.2 s) the rod creeps outwards at 1.5 deg/s with
+    the command 0.6 deg ahead: the evaluator's memory holds theta far above tau and (33)-(35) hold, so the paper's
+    rule identifies a stall in the creep; with the outward-residual condition (0.8 deg, above this creep's residual
+    and below the stall's) neither method does, and the stall itself is identified by both settings alike."""
+    n = 400
+    t = np.arange(n) * DT_S
+    rod = np.where(t < 1.2, 15.0, 15.0 + 1.5 * (t - 1.2)) * DEG_M
+    u_c = np.where(t < 0.2, 15.0 * DEG_M, np.where(t < 1.2, 25.0 * DEG_M, rod + 0.6 * DEG_M))
+    u = rod + np.random.default_rng(6).normal(0.0, 0.05e-3, n)
+    creep, stalled = t >= 1.7, t < 1.2
+    off = [np.asarray(a) for a in run_identification(identification_params(bank), u_c, u)]
+    on = [np.asarray(a) for a in run_identification(identification_params(bank, identification_residual_deg=0.8),
+                                                     u_c, u)]
+    assert off[0][creep].min() > 5.0 * DEG_M  # theta far above tau = 1 deg: the memory of the stall
+    assert off[1][creep].any() and off[2][creep].any()
+    assert not on[1][creep].any() and not on[2][creep].any()
+    np.testing.assert_array_equal(on[1][stalled], off[1][stalled])
+    assert on[1][stalled].sum() > 50
+    np.testing.assert_array_equal(on[3] >= 0.0, on[1])

@@ -85,8 +85,18 @@ def fdd_params(fdd_cfg: config.FddConfig, bank: lpv.GainBank, r_arm_m: float) ->
             model=stall.ModelRule(stl.model.k_sl_1_s, stl.model.pole_1_s, evaluator_params(stl.model.evaluator),
                                   stl.model.tau_deg * deg),
             saturation=None if stl.saturation_rate_fraction == 0.0 else stall.SaturationGate(
-                stl.saturation_error_deg * deg, stl.saturation_rate_fraction, stl.rate_pole_1_s)),
+                stl.saturation_error_deg * deg, stl.saturation_rate_fraction, stl.rate_pole_1_s),
+            identification=identification_gate(stl, deg)),
     )
+
+
+def identification_gate(stl: config.StallDetectionConfig, deg: float) -> stall.IdentificationGate | None:
+    """The stall identification gate in rod units (``deg``: m of rod travel per degree); None when both of
+    its keys are 0 (not built: the detector's iota opens identification)."""
+    if stl.identification_tau_deg == 0.0 and stl.identification_residual_deg == 0.0:
+        return None
+    return stall.IdentificationGate((stl.identification_tau_deg or stl.tau_deg) * deg,
+                                    stl.identification_residual_deg * deg or None)
 
 
 def settings(eval_cfg: config.EvaluationConfig, r_arm_m: float) -> scoring.Settings:

@@ -122,6 +122,15 @@ class StallDetectionConfig(Section):
                                 "fast, so the gate closes at the first sample of a saturated slew, before the "
                                 "detector's residual has grown: 0.05 mm of sensor noise gives the rate an RMS "
                                 "of about 5 deg/s, against a saturated rate near 90 deg/s")
+    identification_tau_deg: float = spec(0.0, lo=0.0, doc="identification gate: both identification methods "
+                                         "open while theta is at least this (deg), instead of the detector's "
+                                         "tau_deg; 0: tau_deg (with identification_residual_deg 0 too, no gate is "
+                                         "built and iota opens them, the paper's rule)")
+    identification_residual_deg: float = spec(0.0, lo=0.0, doc="identification gate: ... and while the detector's "
+                                              "residual now, signed outwards (-sgn(u) r: the rod short of the "
+                                              "model's prediction towards a command beyond it, as in a stall), is at "
+                                              "least this (deg), so that the evaluator's memory of an earlier stall "
+                                              "load does not open identification by itself; 0: no residual condition")
     identification: choice(("signal", "model")) = spec("signal", doc="which eta is eta_stall")
     signal: SignalRulesConfig = spec(SignalRulesConfig())
     model: ModelRuleConfig = spec(ModelRuleConfig())

@@ -41,6 +41,19 @@ is not negative: the least of the tracking error over ``error_m`` and the measur
 the command, ``sgn(u_c - u) udot``, over ``rate_fraction`` times the model's saturated rate
 ``k error_m``, each relative. The measured rate is the backward difference of the measured position,
 low-passed at ``rate_pole`` (:func:`rate_step`); a stall (rate near 0) is never gated.
+
+Identification gate (off by default): the detector's own iota = [theta >= tau] opens both methods, and
+theta carries the evaluator's memory (gamma 0.1 1/s: 10 s) of an earlier stall load. Measured on
+``configs/stall_campaign.toml`` (seed 11, README "The stall detector"): the relevant stall loads
+identified late are weak ones, the rod stopped with |u_c - u| of 0.5-1.1 deg and rules (33)-(35)
+holding 0.2-0.7 s before theta reached tau = 1 deg (the residual of a stopped rod is about k / k0 times
+the tracking error, k / k0 near 0.5 at those loads); the identifications outside stall loads are a
+rod crawling towards its command at 1.5-5 deg/s after a stall load, iota held by the memory while
+the residual itself is 0.1-0.2 deg. With :class:`IdentificationGate` the methods open where
+:func:`identification_margin` is not negative: theta at least ``tau`` (its own threshold, e.g. lower
+than the detector's) and, optionally, the residual now of the stall's sign, ``-sgn(u) r`` (the rod
+short of the model's prediction outwards: a stalled rod stops while the model (20) moves it towards
+u_c, and (35) has u_c beyond u), at least ``residual_min_m``.
 """
 
 from __future__ import annotations
@@ -77,6 +90,24 @@ class SaturationGate(NamedTuple):
     error_m: float  # servo valve linear range: beyond this tracking error the valve current saturates
     rate_fraction: float  # gated while the rod moves towards the command at least this fraction of k error_m
     rate_pole: float  # pole of the low-pass of the measured rate (1/s)
+
+
+class IdentificationGate(NamedTuple):
+    """Parameters of the identification gate (rod units, m)."""
+
+    tau: float  # theta at least this opens identification
+    residual_min_m: float | None  # ... and the outward residual -sgn(u) r at least this; None: no residual condition
+
+
+def identification_margin(gate: IdentificationGate, theta, r, u):
+    """Signed margin of the identification gate, open where it is not negative: the least of theta over
+    ``gate.tau`` and (unless ``residual_min_m`` is None) of ``-sgn(u) r`` over ``residual_min_m``, each
+    relative (:func:`mcfdd.fdd.decision.relative`). theta, r: the detector's (20) evaluated and raw
+    residual at this sample, u the measured position, all in m."""
+    margin = decision.relative(theta, gate.tau)
+    if gate.residual_min_m is None:
+        return margin
+    return jnp.minimum(margin, decision.relative(-jnp.sign(u) * r, gate.residual_min_m))
 
 
 class RateState(NamedTuple):

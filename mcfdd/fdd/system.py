@@ -52,7 +52,10 @@
 - Stall loads (Fig. 2, Section 5): the detector (20) scheduled on the fault-free model, its
   evaluator and decision (25), and both identification methods of Section 5.4. Optionally the
   detector is not evaluated while the rod slews at its saturated rate (:mod:`mcfdd.fdd.stall`'s
-  rate-saturation gate: its filter restarts from equilibrium there and at the first sample after).
+  rate-saturation gate: its filter restarts from equilibrium there and at the first sample after), and
+  optionally both identification methods are opened by their own gate instead of the detector's iota
+  (:mod:`mcfdd.fdd.stall`'s identification gate: theta above its own threshold and the residual now of
+  the stall's sign).
 
 Inputs are what an aircraft has: the command u_c, the measured rod position u and the flight
 parameters p = (Vcas, h). All numbers that may be tuned are leaves of :class:`FddParams`.
@@ -107,6 +110,8 @@ class StallParams(NamedTuple):
     model: stall.ModelRule
     # rate-saturation gate of the detector (:mod:`mcfdd.fdd.stall`); None: no gate (not built)
     saturation: stall.SaturationGate | None = None
+    # identification gate of both methods (:mod:`mcfdd.fdd.stall`); None: the detector's iota opens them
+    identification: stall.IdentificationGate | None = None
 
 
 class FddParams(NamedTuple):
@@ -296,12 +301,17 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     stall_xq, r_stall = once(residual.step(k[0], bank.k0[0], stl.pole, stall_xq, u, u_c, dt_s), params.one)
     stall_xi, theta_stall = once(evaluator.step(stl.evaluator, state.stall_xi, r_stall, dt_s), params.one)
     iota_stall = decision.threshold(theta_stall, stl.tau)
+    if stl.identification is None:
+        opens, iota_id = decision.relative(theta_stall, stl.tau), iota_stall
+    else:
+        opens = once(stall.identification_margin(stl.identification, theta_stall, r_stall, u), params.one)
+        iota_id = opens >= 0.0
     gate_margin = once(stall.conditions_margin(stl.signal, u_c, u), params.one)
     gate = gate_margin >= 0.0  # both methods' gate, (34)-(35)
-    signal, eta_signal, slow = stall.signal_step(stl.signal, state.signal, iota_stall, gate, u, t_s, dt_s)
-    model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_stall, gate, u_c, u, dt_s)
+    signal, eta_signal, slow = stall.signal_step(stl.signal, state.signal, iota_id, gate, u, t_s, dt_s)
+    model, eta_model, _, theta_sl = stall.model_step(stl.model, state.model, iota_id, gate, u_c, u, dt_s)
     eta_signal, eta_model = once(eta_signal, params.one), once(eta_model, params.one)
-    both = once(jnp.minimum(decision.relative(theta_stall, stl.tau), gate_margin), params.one)
+    both = once(jnp.minimum(opens, gate_margin), params.one)
     eta_margins = (jnp.minimum(both, slow), jnp.minimum(both, decision.below(theta_sl, stl.model.tau)))
     since_stall = jnp.where(eta_signal | eta_model, 0.0, state.since_stall + dt_s)
 
