@@ -436,8 +436,8 @@ def test_bad_stall_gate_values_are_named(key, value, message):
 
 
 @pytest.mark.parametrize("key, value, message", [
-    ("identification_tau_deg", -0.5, "-0.5 is outside the allowed range [0.0, inf)"),
-    ("identification_residual_deg", -0.1, "-0.1 is outside the allowed range [0.0, inf)"),
+    ("identification_tau_deg", -0.5, "-0.5 is outside the allowed range [0.0, inf]"),
+    ("identification_residual_deg", -0.1, "-0.1 is outside the allowed range [0.0, inf]"),
     ("identification_residual_deg", "small", "expected a number, got string 'small'"),
     ("identification_threshold_deg", 0.7, "unknown key"),
 ])
