@@ -448,9 +448,9 @@ def test_bad_identification_gate_values_are_named(key, value, message):
 
 
 def test_identification_gate_off_by_default_and_built_only_when_on():
-    """Both keys 0 (the default) build no identification gate; either one builds it in rod units, its theta threshold
-    the detector's tau where identification_tau_deg is 0 and no residual condition where identification_residual_deg
-    is 0."""
+    """Both keys 0 (the default) build no identification gate (stall_campaign.toml ships 0.8 and 0.3 deg); either one
+    builds it in rod units, its theta threshold the detector's tau where identification_tau_deg is 0 and no residual
+    condition where identification_residual_deg is 0."""
     from mcfdd.fdd import lpv
 
     bank = lpv.from_dict(io.load_bank_dict(), dtype=np.float64)[0]
@@ -463,6 +463,8 @@ def test_identification_gate_off_by_default_and_built_only_when_on():
         return build.fdd_params(cfg.fdd, bank, r_arm).stall.identification
 
     assert gate() is None
+    shipped = config.load_config(CONFIGS / "stall_campaign.toml").fdd.stall
+    assert (shipped.identification_tau_deg, shipped.identification_residual_deg) == (0.8, 0.3)
     only_tau = gate(identification_tau_deg=0.7)
     assert only_tau.tau == pytest.approx(0.7 * deg, rel=1e-12) and only_tau.residual_min_m is None
     only_residual = gate(identification_residual_deg=0.3, tau_deg=1.2)
