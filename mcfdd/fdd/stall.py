@@ -48,8 +48,8 @@ theta carries the evaluator's memory (gamma 0.1 1/s: 10 s) of an earlier stall l
 identified late are weak ones, the rod stopped with |u_c - u| of 0.5-1.1 deg and rules (33)-(35)
 holding 0.2-0.7 s before theta reached tau = 1 deg (the residual of a stopped rod is about k / k0 times
 the tracking error, k / k0 near 0.5 at those loads); the identifications outside stall loads are a
-rod crawling towards its command at 1.5-5 deg/s after a stall load, iota held by the memory while
-the residual itself is 0.1-0.2 deg. With :class:`IdentificationGate` the methods open where
+rod creeping towards its command at 0.5-5 deg/s after a stall load, iota held by the memory while
+the residual itself is 0.1-0.25 deg. With :class:`IdentificationGate` the methods open where
 :func:`identification_margin` is not negative: theta at least ``tau`` (its own threshold, e.g. lower
 than the detector's) and, optionally, the residual now of the stall's sign, ``-sgn(u) r`` (the rod
 short of the model's prediction outwards: a stalled rod stops while the model (20) moves it towards
