@@ -21,6 +21,16 @@ A point has converged when its distance to the limit surface |g| / ||grad g|| an
 between u and grad g (1 - cos) are both below ``tol``; converged points closer than
 0.01 max(1, beta) to one of smaller beta are duplicates.
 
+A start inside F (g >= 0: a failure point of a subset simulation) moves by feasible steps instead:
+of the same trial points, the one of smallest ||u|| that stays in F (g >= -tol ||grad g||), or none.
+Linearised, the damped step keeps g at (1 - s) g(u) >= 0, so on a near-linear g it is the damped
+HLRF; on a first passage of a closed-loop simulation the linearisation at a failure point of the
+standard-normal shell (||u|| near sqrt(d)) is far off, and the merit function's step would leave
+F for the origin's neighbourhood, where g is flat. Such a start ends, unconverged, at the most
+probable failure point its descent reached, which is usable as a centre (in F; duplicates as
+above): importance sampling stays unbiased around any centre, and its c.o.v. says how good the
+centres were.
+
 Importance sampling: the density is the mixture q(u) = sum_k w_k q_k(u) of normals centred on the
 m distinct design points, w_k proportional to Phi(-beta_k), component k with covariance
 I + (s^2 - 1) a_k a_k^T, a_k = u*_k / beta_k: unit covariance (s = 1, the default) or widened
@@ -33,16 +43,14 @@ coordinates):
 
 which for s = 1 is -ln sum_k w_k exp(u . u*_k - ||u*_k||^2 / 2). A wider component puts more
 samples past the design point's tangent plane, where a first passage's other crossings and a
-curved limit surface lie.
-
-and p_hat, its c.o.v. and its normal (central limit) interval follow from the weighted samples
+curved limit surface lie. Then p_hat, its c.o.v. and its normal (central limit) interval follow from the weighted samples
 (:mod:`mcfdd.analysis.rare.sampling`). q is positive everywhere, so the estimate is unbiased
 whatever design points were found; a crossing without a design point in the mixture shows as
 rare large weights, i.e. a large c.o.v. With no converged design point the samples are drawn
 from phi itself (plain Monte Carlo), and the result says so (``reached=False``).
 
-Simulations: screening + iterations x starts x (1 gradient + 6 line-search evaluations) +
-starts (the final check) + n. A gradient (one forward and one reverse pass) counts as one.
+Simulations: screening + starts (is the start in F) + iterations x starts x (1 gradient + 6
+line-search evaluations) + starts (the final check) + n. A gradient (one forward and one reverse pass) counts as one.
 """
 
 from __future__ import annotations
@@ -70,7 +78,8 @@ class DesignPoints(NamedTuple):
         beta: (k,) ||u*||.
         margin: (k,) g at the points (0 at a design point).
         converged: (k,) the convergence test held.
-        distinct: (k,) converged and not a duplicate of one of smaller beta.
+        distinct: (k,) usable (converged, or the end of a feasible descent from a start in F) and not
+            a duplicate of one of smaller beta: the mixture's centres.
     """
 
     points: jax.Array
@@ -104,27 +113,35 @@ def search(g, starts, iterations: int, tol: float, args=()) -> DesignPoints:
         c = 2.0 * jnp.linalg.norm(u, axis=1) / jnp.sqrt(safe) + 1.0
         return jnp.where(norm2[:, None] > 0, target - u, 0.0), c
 
+    k, d = starts.shape
+    inside = g(starts, *args) >= 0  # (k,) these starts take feasible steps (module docstring)
+
     def iterate(_, u):
         gu, grad = _value_and_grad(g, u, args)
         dirn, c = direction(u, gu, grad)
         trial = u[None] + steps[:, None, None] * dirn[None]  # (steps, k, d)
-        k, d = u.shape
         gt = g(trial.reshape(-1, d), *args).reshape(len(STEPS), k)
         best = jnp.argmin(merit(trial, gt, c[None]), axis=0)
-        return trial[best, jnp.arange(k)]
+        ok = (gt >= -tol * jnp.linalg.norm(grad, axis=1)[None]) & jnp.all(jnp.isfinite(trial), axis=2)
+        norms = jnp.where(ok, jnp.sum(trial * trial, axis=2), jnp.inf)
+        feasible = jnp.argmin(norms, axis=0)
+        moved = trial[jnp.where(inside, feasible, best), jnp.arange(k)]
+        return jnp.where((inside & ~jnp.any(ok, axis=0))[:, None], u, moved)
 
     u = jax.lax.fori_loop(0, iterations, iterate, starts)
     gu, grad = _value_and_grad(g, u, args)
     norm_u, norm_g = jnp.linalg.norm(u, axis=1), jnp.linalg.norm(grad, axis=1)
     distance = jnp.abs(gu) / jnp.where(norm_g > 0, norm_g, jnp.inf)
     cosine = jnp.sum(u * grad, axis=1) / jnp.where(norm_u * norm_g > 0, norm_u * norm_g, jnp.inf)
-    converged = (distance < tol) & (1.0 - cosine < tol) & jnp.all(jnp.isfinite(u), axis=1)
-    order = jnp.argsort(jnp.where(converged, norm_u, jnp.inf))
-    u, gu, norm_u, converged = u[order], gu[order], norm_u[order], converged[order]
+    finite = jnp.all(jnp.isfinite(u), axis=1)
+    converged = (distance < tol) & (1.0 - cosine < tol) & finite
+    usable = converged | (inside & (gu >= -tol * norm_g) & finite)
+    order = jnp.argsort(jnp.where(usable, norm_u, jnp.inf))
+    u, gu, norm_u, converged, usable = u[order], gu[order], norm_u[order], converged[order], usable[order]
     gap = jnp.linalg.norm(u[:, None] - u[None], axis=-1)
     earlier = jnp.tril(jnp.ones(gap.shape, bool), -1)
-    duplicate = jnp.any(earlier & converged[None] & (gap < DUPLICATE * jnp.maximum(1.0, norm_u)[:, None]), axis=1)
-    return DesignPoints(u, norm_u, gu, converged, converged & ~duplicate)
+    duplicate = jnp.any(earlier & usable[None] & (gap < DUPLICATE * jnp.maximum(1.0, norm_u)[:, None]), axis=1)
+    return DesignPoints(u, norm_u, gu, converged, usable & ~duplicate)
 
 
 def screened_starts(g, d, key, starts: int, screening: int, dtype, args=()):
@@ -254,7 +271,7 @@ def importance_sampling(g, d: int, key, *, n: int = 1000, batch: int | None = No
     lo, hi = interval(p, cov, confidence, "normal")
     points, margins = failure_arrays(sums.points, sums.margins, sums.score)
     k = len(found.points)
-    n_sim = screening + iterations * k * (1 + len(STEPS)) + k + n
+    n_sim = screening + k + iterations * k * (1 + len(STEPS)) + k + n
     return Estimate(method="importance", estimate=p, cov=cov, interval=(lo, hi), confidence=confidence,
                     kind="normal", n_simulations=n_sim, hits=int(sums.hits), reached=bool(np.any(found.distinct)),
                     failure_points=points, failure_margins=margins,
