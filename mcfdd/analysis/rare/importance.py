@@ -43,14 +43,17 @@ coordinates):
 
 which for s = 1 is -ln sum_k w_k exp(u . u*_k - ||u*_k||^2 / 2). A wider component puts more
 samples past the design point's tangent plane, where a first passage's other crossings and a
-curved limit surface lie. Then p_hat, its c.o.v. and its normal (central limit) interval follow from the weighted samples
-(:mod:`mcfdd.analysis.rare.sampling`). q is positive everywhere, so the estimate is unbiased
-whatever design points were found; a crossing without a design point in the mixture shows as
-rare large weights, i.e. a large c.o.v. With no converged design point the samples are drawn
-from phi itself (plain Monte Carlo), and the result says so (``reached=False``).
+curved limit surface lie. Then p_hat, its c.o.v. and its normal (central limit) interval follow
+from the weighted samples (:mod:`mcfdd.analysis.rare.sampling`). q is positive everywhere, so the
+estimate is unbiased whatever design points were found; but a part of F the mixture misses shows
+only as rare large weights: a large c.o.v. when one is drawn, and when none is among the n
+samples, a low estimate with a small stated c.o.v. (repeated runs,
+:func:`mcfdd.analysis.rare.repeated`, show the spread). With no converged design point the samples are drawn from phi itself (plain Monte
+Carlo), and the result says so (``reached=False``).
 
 Simulations: screening + starts (is the start in F) + iterations x starts x (1 gradient + 6
-line-search evaluations) + starts (the final check) + n. A gradient (one forward and one reverse pass) counts as one.
+line-search evaluations) + starts (the final check) + n. A gradient (one forward and one reverse
+pass) counts as one.
 """
 
 from __future__ import annotations
@@ -253,16 +256,16 @@ def importance_sampling(g, d: int, key, *, n: int = 1000, batch: int | None = No
     spread = jnp.asarray(spread, dtype)
     if isinstance(starts, int):
         _check_search(starts, screening, iterations)
-        found, sums = jax.device_get(_importance_screened(g, d, key, tuple(args), spread, n, batch, keep, starts, screening,
-                                                          iterations, tol, dtype))
+        found, sums = jax.device_get(_importance_screened(g, d, key, tuple(args), spread, n, batch, keep, starts,
+                                                          screening, iterations, tol, dtype))
     else:
         starts = np.asarray(starts)
         if starts.ndim != 2 or starts.shape[1] != d or len(starts) < 1:
             raise ValueError(f"start points must be an array (k, {d}), got shape {starts.shape}")
         _check_search(len(starts), len(starts), iterations)
         screening = 0
-        found, sums = jax.device_get(_importance_from(g, d, key, tuple(args), spread, starts, n, batch, keep, iterations,
-                                                      tol, dtype))
+        found, sums = jax.device_get(_importance_from(g, d, key, tuple(args), spread, starts, n, batch, keep,
+                                                      iterations, tol, dtype))
     p = float(sums.s1) / n
     var = max(float(sums.s2) - n * p * p, 0.0) / (n * (n - 1.0))
     cov = float(np.sqrt(var) / p) if p > 0 else float("inf")
