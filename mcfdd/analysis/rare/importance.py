@@ -48,8 +48,9 @@ from the weighted samples (:mod:`mcfdd.analysis.rare.sampling`). q is positive e
 estimate is unbiased whatever design points were found; but a part of F the mixture misses shows
 only as rare large weights: a large c.o.v. when one is drawn, and when none is among the n
 samples, a low estimate with a small stated c.o.v. (repeated runs,
-:func:`mcfdd.analysis.rare.repeated`, show the spread). With no converged design point the samples are drawn from phi itself (plain Monte
-Carlo), and the result says so (``reached=False``).
+:func:`mcfdd.analysis.rare.repeated`, show the spread). With no converged design point the
+samples are drawn from phi itself (plain Monte Carlo), and the result says so
+(``reached=False``).
 
 Simulations: screening + starts (is the start in F) + iterations x starts x (1 gradient + 6
 line-search evaluations) + starts (the final check) + n. A gradient (one forward and one reverse
