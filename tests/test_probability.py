@@ -282,8 +282,9 @@ def test_subset_simulation_agrees_with_monte_carlo_and_repeats_to_the_bit(tmp_pa
 
 def test_importance_sampling_from_subset_failure_points_agrees_with_monte_carlo_to_the_bit(tiny_mc):
     """starts_from "subset": the searches start at a subset simulation run's failure points (inside F: feasible
-    steps), the mixture is widened; the estimate holds the Monte Carlo one, repeats to the bit, compiles nothing
-    the second time, and counts the subset run's simulations."""
+    steps), the mixture is widened; the interval holds the Monte Carlo estimate, the run repeats to the bit,
+    compiles nothing the second time and counts the subset run's simulations; a run without a converged design
+    point (the FDD's margin is kinked: benchmarks/RESULTS.md) says so and is plain Monte Carlo, hits / n."""
     cfg = config.replace(tiny(), {"probability.method": "importance", "probability.starts_from": "subset",
                                   "probability.start_samples": 100, "probability.starts": 4,
                                   "probability.iterations": 5, "probability.spread": 1.5, "probability.samples": 400,
@@ -295,7 +296,8 @@ def test_importance_sampling_from_subset_failure_points_agrees_with_monte_carlo_
     np.testing.assert_array_equal(one.failure_points, again.failure_points)
     lo, hi = one.overall.interval
     assert lo <= tiny_mc.overall.estimate <= hi
-    assert tiny_mc.overall.interval[0] <= one.overall.estimate <= tiny_mc.overall.interval[1]
+    plain = ~one.runs["reached"].astype(bool)
+    np.testing.assert_allclose(one.runs["estimate"][plain], one.runs["hits"][plain] / 400, rtol=1e-6)
     # each run: a subset run of 100 per level (at least 100) + 4 checks + 5 x 4 x 7 search + 4 + 400 samples
     assert (one.runs["simulations"] >= 100 + 4 + 140 + 4 + 400).all()
     assert (one.runs["hits"] > 0).all()
