@@ -34,6 +34,7 @@ import mcfdd
 from mcfdd import config
 from mcfdd.analysis import probability as normal_space, rare
 from mcfdd.analysis.metrics import clopper_pearson
+from mcfdd.flags import set_overrides
 from mcfdd.workflows.common import dtype_of, precision
 from mcfdd.workflows.probability import problem_of
 
@@ -52,21 +53,7 @@ def reduced(args, **extra) -> config.CampaignConfig:
     if args.turbulence:
         changes["space.turbulence"] = args.turbulence
     changes["probability.method"] = args.method
-    return config.replace(cfg, {**changes, **settings(args.set), **extra})
-
-
-def settings(items) -> dict:
-    """``KEY=VALUE`` strings as a dict of numbers (or strings where not numbers)."""
-    out = {}
-    for key, value in (item.split("=", 1) for item in items):
-        try:
-            out[key] = int(value)
-        except ValueError:
-            try:
-                out[key] = float(value)
-            except ValueError:
-                out[key] = value
-    return out
+    return config.replace(cfg, {**changes, **set_overrides(args.set), **extra})
 
 
 def show(label: str, result, seconds: float):
@@ -144,7 +131,7 @@ def main():
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="more config keys, e.g. probability.starts_from=subset probability.spread=1.5")
     args = p.parse_args()
-    lowered = settings(args.lowered) if args.check else {}
+    lowered = set_overrides(args.lowered) if args.check else {}
     label = f"lowered {lowered}" if args.check else "validation FDD"
     if not args.subset_only and args.check:
         plain_monte_carlo(reduced(args, **lowered), args.mc, args.mc_batch, args.seeds[0])
