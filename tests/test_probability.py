@@ -282,9 +282,10 @@ def test_subset_simulation_agrees_with_monte_carlo_and_repeats_to_the_bit(tmp_pa
 
 def test_importance_sampling_from_subset_failure_points_agrees_with_monte_carlo_to_the_bit(tiny_mc):
     """starts_from "subset": the searches start at a subset simulation run's failure points (inside F: feasible
-    steps), the mixture is widened; the interval holds the Monte Carlo estimate, the run repeats to the bit,
-    compiles nothing the second time and counts the subset run's simulations; a run without a converged design
-    point (the FDD's margin is kinked: benchmarks/RESULTS.md) says so and is plain Monte Carlo, hits / n."""
+    steps), the mixture widened (spread 1.5, where a design point converges); the interval holds the Monte
+    Carlo estimate, the run repeats to the bit, compiles nothing the second time and counts the subset run's
+    simulations; a run without a converged design point (the FDD's margin is kinked: benchmarks/RESULTS.md)
+    says so and is plain Monte Carlo, hits / n."""
     cfg = config.replace(tiny(), {"probability.method": "importance", "probability.starts_from": "subset",
                                   "probability.start_samples": 100, "probability.starts": 4,
                                   "probability.iterations": 5, "probability.spread": 1.5, "probability.samples": 400,
