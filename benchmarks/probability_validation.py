@@ -4,7 +4,8 @@
    default ``fdd.loe.detection_contrast=0.03``), where a false alarm is common enough for plain Monte
    Carlo: plain Monte Carlo of ``--mc`` runs in printed batches (``--mc-only``: that alone), then
    subset simulation for each of ``--seeds`` (``--subset-only``: that alone).
-2. Otherwise the validation FDD as configured: subset simulation per stratum (``--repeats`` runs,
+2. Otherwise the validation FDD as configured: the estimator (``--method``, subset simulation by default;
+   importance sampling's keys by ``--set``) per stratum (``--repeats`` runs,
    then more to the target c.o.v. within the budget), for each of ``--seeds``; the simulations spent
    against the runs plain Monte Carlo would need for the same c.o.v., (1 - p) / (p cov^2).
 
@@ -15,6 +16,7 @@ number printed says what was run. The per-airframe view is off here.
 
     nice -n 10 python benchmarks/probability_validation.py [--duration 20] [--manoeuvre doublet]
         [--turbulence moderate] [--samples 400] [--p0 0.1] [--repeats 4] [--budget 20000] [--seeds 11 12 13]
+        [--method importance --set probability.starts_from=subset probability.spread=1.5]
         [--check [--mc-only | --subset-only] --lowered fdd.loe.detection_contrast=0.03 --mc 100000]
 """
 
@@ -32,6 +34,7 @@ import mcfdd
 from mcfdd import config
 from mcfdd.analysis import probability as normal_space, rare
 from mcfdd.analysis.metrics import clopper_pearson
+from mcfdd.flags import set_overrides
 from mcfdd.workflows.common import dtype_of, precision
 from mcfdd.workflows.probability import problem_of
 
@@ -49,7 +52,8 @@ def reduced(args, **extra) -> config.CampaignConfig:
         changes["space.manoeuvre_kind"] = args.manoeuvre
     if args.turbulence:
         changes["space.turbulence"] = args.turbulence
-    return config.replace(cfg, {**changes, **extra})
+    changes["probability.method"] = args.method
+    return config.replace(cfg, {**changes, **set_overrides(args.set), **extra})
 
 
 def show(label: str, result, seconds: float):
@@ -122,9 +126,12 @@ def main():
     p.add_argument("--mc", type=int, default=20000, help="plain Monte Carlo runs of the check")
     p.add_argument("--mc-batch", type=int, default=5000, help="plain Monte Carlo runs per printed batch")
     p.add_argument("--mc-only", action="store_true", help="the check's plain Monte Carlo alone")
-    p.add_argument("--subset-only", action="store_true", help="the check's subset simulation alone")
+    p.add_argument("--subset-only", action="store_true", help="the check's estimator alone (subset or --method)")
+    p.add_argument("--method", default="subset", choices=("subset", "importance"), help="the estimator")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="more config keys, e.g. probability.starts_from=subset probability.spread=1.5")
     args = p.parse_args()
-    lowered = {k: float(v) for k, v in (item.split("=") for item in args.lowered)} if args.check else {}
+    lowered = set_overrides(args.lowered) if args.check else {}
     label = f"lowered {lowered}" if args.check else "validation FDD"
     if not args.subset_only and args.check:
         plain_monte_carlo(reduced(args, **lowered), args.mc, args.mc_batch, args.seeds[0])
@@ -134,7 +141,7 @@ def main():
     for seed in args.seeds:  # the Monte Carlo's seed is reused: the estimators' keys are not its keys
         start = time.perf_counter()
         result = mcfdd.probability(reduced(args, **lowered, **{"probability.seed": seed}), progress=True)
-        show(f"{label}, subset simulation, seed {seed}", result, time.perf_counter() - start)
+        show(f"{label}, {args.method}, seed {seed}", result, time.perf_counter() - start)
         for row in result.runs.itertuples(index=False):
             print(f"    run {row.run}: p = {row.estimate:.3g}, c.o.v. {row.cov:.2f}, {row.simulations} simulations, "
                   f"{row.levels} levels, {row.lineages} lineages at the final level", flush=True)

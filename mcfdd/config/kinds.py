@@ -198,6 +198,7 @@ TURBULENCE_EXPOSURE = {"none": 0.99, "light": 9e-3, "moderate": 9.9e-4, "severe"
 EVENTS = ("false_alarm", "missed_detection", "stall_false_detection", "false_stall_identification_signal",
           "false_stall_identification_model")
 ESTIMATORS = ("subset", "importance", "mc")
+STARTS = ("screening", "subset")  # where importance sampling's design-point searches start
 
 
 class ExposureConfig(Section):
@@ -264,12 +265,29 @@ class ProbabilitySettings(Section):
                         "estimator run")
     p0: float = spec(0.1, lo=0.0, lo_open=True, hi=0.5, doc="subset: conditional probability of a level")
     max_levels: int = spec(12, lo=1, hi=50, doc="subset: intermediate levels at most")
+    starts_from: choice(STARTS) = spec("screening", doc="importance: the design-point searches start from the runs "
+                                       "of largest margin among `screening` standard-normal draws, or from the "
+                                       "failure points of a subset simulation run of `start_samples` samples per "
+                                       "level (its simulations counted)")
+    starts: int = spec(8, lo=1, hi=10_000, doc="importance: design-point searches at once (damped HLRF with "
+                       "gradients through the simulation), one start each")
+    screening: int = spec(256, lo=1, hi=10**6, doc="importance, starts_from 'screening': draws screened for starts")
+    start_samples: int = spec(500, lo=10, hi=10**6, doc="importance, starts_from 'subset': samples per level of "
+                              "the subset simulation run whose failure points start the searches")
+    iterations: int = spec(20, lo=1, hi=10_000, doc="importance: damped HLRF iterations per start")
+    spread: float = spec(1.0, lo=0.0, lo_open=True, hi=10.0, doc="importance: standard deviation of each mixture "
+                         "component along its design direction (1: unit covariance; above 1: widened, tempered)")
     chunk: int = spec(250, lo=1, hi=10**6, doc="runs simulated at once (memory, not results)")
     keep: int = spec(16, lo=1, hi=10_000, doc="failure points kept per stratum")
     confidence: float = spec(0.95, lo=0.5, hi=0.999)
     seed: int | None = spec(None, lo=0, hi=SEED_MAX, doc="estimator keys; default campaign.seed")
     exposure: ExposureConfig = spec(ExposureConfig())
     airframe: AirframeConfig = spec(AirframeConfig())
+
+    def check(self):
+        if self.method == "importance" and self.starts_from == "screening" and self.starts > self.screening:
+            raise Invalid("starts", f"{self.starts} starts are more than the {self.screening} draws screened for them "
+                          "(screening)")
 
 
 class CampaignConfig(Scored):

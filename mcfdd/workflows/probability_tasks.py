@@ -10,6 +10,7 @@ limit state of the last config it saw (:func:`prepared`), so its tasks compile o
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -113,8 +114,26 @@ def run_estimator(g, d: int, key, p, args: tuple) -> rare.Estimate:
                                       **common)
     batch = _divisor(p.samples, p.chunk)
     if p.method == "importance":
-        return rare.importance_sampling(g, d, key, n=p.samples, batch=batch, **common)
+        return importance_run(g, d, key, p, batch, common)
     return rare.monte_carlo(g, d, key, n=p.samples, batch=batch, **common)
+
+
+def importance_run(g, d: int, key, p, batch: int, common: dict) -> rare.Estimate:
+    """Importance sampling around design points (``[probability]``): the searches start from screened draws or,
+    with ``starts_from = "subset"``, from the failure points (smallest ||u|| first, repeated cyclically up to
+    ``starts``: duplicates converge to one design point) of a subset simulation run with the first half of the
+    key, whose simulations are added; with none found, from screened draws."""
+    options = dict(n=p.samples, batch=batch, iterations=p.iterations, spread=p.spread, screening=p.screening,
+                   **common)
+    if p.starts_from == "screening":
+        return rare.importance_sampling(g, d, key, starts=p.starts, **options)
+    k_subset, k_sample = jax.random.split(key)
+    found = rare.subset_simulation(g, d, k_subset, n=p.start_samples, p0=p.p0, max_levels=p.max_levels,
+                                   chunk=p.chunk, keep=p.starts, args=common["args"])
+    points = found.failure_points  # repeated cyclically to ``starts`` rows: one shape, one program
+    starts = np.resize(points, (p.starts, d)) if len(points) else min(p.starts, p.screening)
+    est = rare.importance_sampling(g, d, k_sample, starts=starts, **options)
+    return dataclasses.replace(est, n_simulations=est.n_simulations + found.n_simulations)
 
 
 def estimator_task(cfg: config.CampaignConfig, stratum: int, run: int, point: int = -1) -> rare.Estimate:

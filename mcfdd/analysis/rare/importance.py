@@ -21,21 +21,40 @@ A point has converged when its distance to the limit surface |g| / ||grad g|| an
 between u and grad g (1 - cos) are both below ``tol``; converged points closer than
 0.01 max(1, beta) to one of smaller beta are duplicates.
 
-Importance sampling: the density is the mixture q(u) = sum_k w_k phi(u - u*_k) of unit-covariance
-normals centred on the m distinct design points, w_k proportional to Phi(-beta_k). The likelihood
-ratio depends on u only through its projections on the design points, so it does not degenerate
-as d grows:
+A start inside F (g >= 0: a failure point of a subset simulation) moves by feasible steps instead:
+of the same trial points, the one of smallest ||u|| that stays in F (g >= -tol ||grad g||), or none.
+Linearised, the damped step keeps g at (1 - s) g(u) >= 0, so on a near-linear g it is the damped
+HLRF; on a first passage of a closed-loop simulation the linearisation at a failure point of the
+standard-normal shell (||u|| near sqrt(d)) is far off, and the merit function's step would leave
+F for the origin's neighbourhood, where g is flat. Only converged points are centres: an
+unconverged end (in F, but far from the most probable failure point) is a poor centre whose
+estimate, unbiased but heavy-tailed, states a c.o.v. far below its spread (measured on the
+validation FDD and a reduced FDD space: benchmarks/RESULTS.md, importance sampling on the FDD).
 
-    ln(phi(u) / q(u)) = -ln sum_k w_k exp(u . u*_k - ||u*_k||^2 / 2),
+Importance sampling: the density is the mixture q(u) = sum_k w_k q_k(u) of normals centred on the
+m distinct design points, w_k proportional to Phi(-beta_k), component k with covariance
+I + (s^2 - 1) a_k a_k^T, a_k = u*_k / beta_k: unit covariance (s = 1, the default) or widened
+(tempered, s > 1) along the design direction only. The likelihood ratio depends on u only through
+its projections t_k = a_k . u on the design directions, so it does not degenerate as d grows (a
+covariance s^2 I with s != 1 would: its ratio carries ||u||^2 (1 - 1/s^2) / 2 over all d
+coordinates):
 
-and p_hat, its c.o.v. and its normal (central limit) interval follow from the weighted samples
-(:mod:`mcfdd.analysis.rare.sampling`). q is positive everywhere, so the estimate is unbiased
-whatever design points were found; a crossing without a design point in the mixture shows as
-rare large weights, i.e. a large c.o.v. With no converged design point the samples are drawn
-from phi itself (plain Monte Carlo), and the result says so (``reached=False``).
+    ln(phi(u) / q(u)) = -ln sum_k w_k exp(t_k^2 / 2 - (t_k - beta_k)^2 / (2 s^2) - ln s),
 
-Simulations: screening + iterations x starts x (1 gradient + 6 line-search evaluations) +
-starts (the final check) + n. A gradient (one forward and one reverse pass) counts as one.
+which for s = 1 is -ln sum_k w_k exp(u . u*_k - ||u*_k||^2 / 2). A wider component puts more
+samples past the design point's tangent plane, where a first passage's other crossings and a
+curved limit surface lie. Then p_hat, its c.o.v. and its normal (central limit) interval follow
+from the weighted samples (:mod:`mcfdd.analysis.rare.sampling`). q is positive everywhere, so the
+estimate is unbiased whatever design points were found; but a part of F the mixture misses shows
+only as rare large weights: a large c.o.v. when one is drawn, and when none is among the n
+samples, a low estimate with a small stated c.o.v. (repeated runs,
+:func:`mcfdd.analysis.rare.repeated`, show the spread). With no converged design point the
+samples are drawn from phi itself (plain Monte Carlo), and the result says so
+(``reached=False``).
+
+Simulations: screening + starts (is the start in F) + iterations x starts x (1 gradient + 6
+line-search evaluations) + starts (the final check) + n. A gradient (one forward and one reverse
+pass) counts as one.
 """
 
 from __future__ import annotations
@@ -63,7 +82,7 @@ class DesignPoints(NamedTuple):
         beta: (k,) ||u*||.
         margin: (k,) g at the points (0 at a design point).
         converged: (k,) the convergence test held.
-        distinct: (k,) converged and not a duplicate of one of smaller beta.
+        distinct: (k,) converged and not a duplicate of one of smaller beta: the mixture's centres.
     """
 
     points: jax.Array
@@ -97,21 +116,28 @@ def search(g, starts, iterations: int, tol: float, args=()) -> DesignPoints:
         c = 2.0 * jnp.linalg.norm(u, axis=1) / jnp.sqrt(safe) + 1.0
         return jnp.where(norm2[:, None] > 0, target - u, 0.0), c
 
+    k, d = starts.shape
+    inside = g(starts, *args) >= 0  # (k,) these starts take feasible steps (module docstring)
+
     def iterate(_, u):
         gu, grad = _value_and_grad(g, u, args)
         dirn, c = direction(u, gu, grad)
         trial = u[None] + steps[:, None, None] * dirn[None]  # (steps, k, d)
-        k, d = u.shape
         gt = g(trial.reshape(-1, d), *args).reshape(len(STEPS), k)
         best = jnp.argmin(merit(trial, gt, c[None]), axis=0)
-        return trial[best, jnp.arange(k)]
+        ok = (gt >= -tol * jnp.linalg.norm(grad, axis=1)[None]) & jnp.all(jnp.isfinite(trial), axis=2)
+        norms = jnp.where(ok, jnp.sum(trial * trial, axis=2), jnp.inf)
+        feasible = jnp.argmin(norms, axis=0)
+        moved = trial[jnp.where(inside, feasible, best), jnp.arange(k)]
+        return jnp.where((inside & ~jnp.any(ok, axis=0))[:, None], u, moved)
 
     u = jax.lax.fori_loop(0, iterations, iterate, starts)
     gu, grad = _value_and_grad(g, u, args)
     norm_u, norm_g = jnp.linalg.norm(u, axis=1), jnp.linalg.norm(grad, axis=1)
     distance = jnp.abs(gu) / jnp.where(norm_g > 0, norm_g, jnp.inf)
     cosine = jnp.sum(u * grad, axis=1) / jnp.where(norm_u * norm_g > 0, norm_u * norm_g, jnp.inf)
-    converged = (distance < tol) & (1.0 - cosine < tol) & jnp.all(jnp.isfinite(u), axis=1)
+    finite = jnp.all(jnp.isfinite(u), axis=1)
+    converged = (distance < tol) & (1.0 - cosine < tol) & finite
     order = jnp.argsort(jnp.where(converged, norm_u, jnp.inf))
     u, gu, norm_u, converged = u[order], gu[order], norm_u[order], converged[order]
     gap = jnp.linalg.norm(u[:, None] - u[None], axis=-1)
@@ -151,45 +177,52 @@ def _check_search(starts, screening, iterations):
         raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
 
 
-def mixture_draw(points, usable, dtype):
-    """``draw(key, m)`` for the mixture around the usable design points (phi itself if none)."""
+def mixture_draw(points, usable, dtype, spread=1.0):
+    """``draw(key, m)`` for the mixture around the usable design points (phi itself if none), each
+    component's standard deviation ``spread`` along its design direction and 1 across it."""
     any_usable = jnp.any(usable)
     centres = jnp.where(any_usable, points, 0.0)
-    log_w = jnp.where(usable, log_ndtr(-jnp.linalg.norm(points, axis=1)), -jnp.inf)
+    beta = jnp.linalg.norm(centres, axis=1)
+    axes = centres / jnp.where(beta > 0, beta, 1.0)[:, None]  # (k, d) unit design directions (0 for phi)
+    s = jnp.where(any_usable, jnp.asarray(spread, dtype), 1.0)
+    log_w = jnp.where(usable, log_ndtr(-beta), -jnp.inf)
     log_w = jnp.where(any_usable, log_w - logsumexp(log_w), jnp.where(jnp.arange(len(points)) == 0, 0.0, -jnp.inf))
-    half = 0.5 * jnp.sum(centres * centres, axis=1)
 
     def draw(key, m):
         k1, k2 = jax.random.split(key)
         comp = jax.random.categorical(k1, log_w, shape=(m,))
-        u = centres[comp] + jax.random.normal(k2, (m, points.shape[1]), dtype)
-        return u, -logsumexp(log_w[None] + u @ centres.T - half[None], axis=1)
+        z = jax.random.normal(k2, (m, points.shape[1]), dtype)
+        a = axes[comp]
+        u = centres[comp] + z + ((s - 1.0) * jnp.sum(a * z, axis=1))[:, None] * a
+        t = u @ axes.T  # (m, k) projections on the design directions
+        log_q = 0.5 * t * t - 0.5 * ((t - beta[None]) / s) ** 2 - jnp.log(s)  # ln q_k(u) - ln phi(u)
+        return u, -logsumexp(log_w[None] + log_q, axis=1)
 
     return draw
 
 
-def _sample(g, d, key, args, found, n, batch, keep, dtype):
-    return found, weighted_sums(g, mixture_draw(found.points, found.distinct, dtype), key, n, batch, keep, d, dtype,
-                                args)
+def _sample(g, d, key, args, found, n, batch, keep, spread, dtype):
+    return found, weighted_sums(g, mixture_draw(found.points, found.distinct, dtype, spread), key, n, batch, keep, d,
+                                dtype, args)
 
 
 @partial(jax.jit, static_argnames=("g", "d", "n", "batch", "keep", "starts", "screening", "iterations", "tol",
                                    "dtype"))
-def _importance_screened(g, d, key, args, n, batch, keep, starts, screening, iterations, tol, dtype):
+def _importance_screened(g, d, key, args, spread, n, batch, keep, starts, screening, iterations, tol, dtype):
     k_search, k_sample = jax.random.split(key)
     found = _design_points(g, d, k_search, args, starts, screening, iterations, tol, dtype)
-    return _sample(g, d, k_sample, args, found, n, batch, keep, dtype)
+    return _sample(g, d, k_sample, args, found, n, batch, keep, spread, dtype)
 
 
 @partial(jax.jit, static_argnames=("g", "d", "n", "batch", "keep", "iterations", "tol", "dtype"))
-def _importance_from(g, d, key, args, starts, n, batch, keep, iterations, tol, dtype):
+def _importance_from(g, d, key, args, spread, starts, n, batch, keep, iterations, tol, dtype):
     found = search(g, starts.astype(dtype), iterations, tol, args)
-    return _sample(g, d, jax.random.split(key)[1], args, found, n, batch, keep, dtype)
+    return _sample(g, d, jax.random.split(key)[1], args, found, n, batch, keep, spread, dtype)
 
 
 def importance_sampling(g, d: int, key, *, n: int = 1000, batch: int | None = None, starts=8,
-                        screening: int = 256, iterations: int = 20, tol: float = 1e-3, keep: int = 16,
-                        confidence: float = 0.95, dtype=None, args=()) -> Estimate:
+                        screening: int = 256, iterations: int = 20, tol: float = 1e-3, spread: float = 1.0,
+                        keep: int = 16, confidence: float = 0.95, dtype=None, args=()) -> Estimate:
     """Importance sampling estimate of P(g(u) > 0) around the design points (module docstring).
 
     Args:
@@ -204,6 +237,8 @@ def importance_sampling(g, d: int, key, *, n: int = 1000, batch: int | None = No
             points themselves, an array (k, d) (e.g. failure points of a subset simulation, or
             one per time of crossing), then with no screening.
         screening, iterations, tol: the design-point search (:func:`design_points`).
+        spread: standard deviation of each mixture component along its design direction (1: unit
+            covariance; > 1 tempered, module docstring); a traced value (a new one compiles nothing).
         keep: failure points returned (the most probable ones sampled).
         confidence: of the normal interval.
         dtype: of u (default: JAX's default float).
@@ -217,25 +252,28 @@ def importance_sampling(g, d: int, key, *, n: int = 1000, batch: int | None = No
     batch = batches(n, batch)
     check_problem(g, d, n, batch, dtype, args)
     dtype = float_dtype(dtype)
+    if not spread > 0:
+        raise ValueError(f"spread must be positive, got {spread!r}")
+    spread = jnp.asarray(spread, dtype)
     if isinstance(starts, int):
         _check_search(starts, screening, iterations)
-        found, sums = jax.device_get(_importance_screened(g, d, key, tuple(args), n, batch, keep, starts, screening,
-                                                          iterations, tol, dtype))
+        found, sums = jax.device_get(_importance_screened(g, d, key, tuple(args), spread, n, batch, keep, starts,
+                                                          screening, iterations, tol, dtype))
     else:
         starts = np.asarray(starts)
         if starts.ndim != 2 or starts.shape[1] != d or len(starts) < 1:
             raise ValueError(f"start points must be an array (k, {d}), got shape {starts.shape}")
         _check_search(len(starts), len(starts), iterations)
         screening = 0
-        found, sums = jax.device_get(_importance_from(g, d, key, tuple(args), starts, n, batch, keep, iterations,
-                                                      tol, dtype))
+        found, sums = jax.device_get(_importance_from(g, d, key, tuple(args), spread, starts, n, batch, keep,
+                                                      iterations, tol, dtype))
     p = float(sums.s1) / n
     var = max(float(sums.s2) - n * p * p, 0.0) / (n * (n - 1.0))
     cov = float(np.sqrt(var) / p) if p > 0 else float("inf")
     lo, hi = interval(p, cov, confidence, "normal")
     points, margins = failure_arrays(sums.points, sums.margins, sums.score)
     k = len(found.points)
-    n_sim = screening + iterations * k * (1 + len(STEPS)) + k + n
+    n_sim = screening + k + iterations * k * (1 + len(STEPS)) + k + n
     return Estimate(method="importance", estimate=p, cov=cov, interval=(lo, hi), confidence=confidence,
                     kind="normal", n_simulations=n_sim, hits=int(sums.hits), reached=bool(np.any(found.distinct)),
                     failure_points=points, failure_margins=margins,
