@@ -4,6 +4,10 @@ Every kind that simulates has ``[plant]`` and ``[fdd]`` (:class:`Simulated`); th
 runs over a scenario space add ``[evaluation]`` and ``[space]`` and share the space's rules
 (:class:`Scored`); the horizon, sample time, sub-steps, seed and precision of runs are one section
 (:class:`SimulationConfig`), which a campaign's settings extend.
+
+Over 400 lines because each command's settings (campaign, tune, worst case, probability, sensitivity)
+are validated here next to the shared sections they extend; splitting them would separate a kind
+from the rules it shares.
 """
 
 from __future__ import annotations
