@@ -260,7 +260,8 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 @pytest.mark.parametrize("tune_name, shipped_name", [("tune_validation", "validation"),
                                                      ("tune_default", "loe_campaign"),
-                                                     ("tune_validation_rcam", "validation_rcam")])
+                                                     ("tune_validation_rcam", "validation_rcam"),
+                                                     ("tune_validation_kci10", "validation_kci10")])
 def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, shipped_name):
     cfg = config.load(config.TuneConfig, CONFIGS / f"{tune_name}.toml")
     shipped = config.load(config.CampaignConfig, CONFIGS / f"{shipped_name}.toml")
