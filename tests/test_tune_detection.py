@@ -298,8 +298,8 @@ def documented_default_fdd() -> dict:
 
 def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path):
     """loe_campaign.toml has no [fdd]: its LOE bank is built from the defaults, which are the FDD that
-    `mcfdd tune configs/tune_default.toml`'s held-out verdict kept, as its comment writes it (every
-    detection-level number and option); the tuner's start, written out in tune_default.toml, is another."""
+    `mcfdd tune configs/tune_default.toml`'s held-out rule adopted, as its comment writes it (every
+    detection-level number and option): the tuner's start, written out in tune_default.toml."""
     documented = documented_default_fdd()
     assert set(documented) >= {"load_gate", "pole_1_s", "evaluator", "detection_tau", "detection_contrast",
                                "excitation_floor_deg", "excitation_noise_factor", "detection_confirm_s"}
@@ -308,7 +308,7 @@ def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path
     written = config.load_fdd_fragment(tmp_path / "fdd.toml")
     assert campaign.fdd == config.FddConfig() == written
     start = config.load(config.TuneConfig, CONFIGS / "tune_default.toml").fdd
-    assert start != campaign.fdd
+    assert start == campaign.fdd
     bank, _ = load_bank(campaign.fdd, np.float64)
     r_arm = build.plant_model(campaign.plant).actuator.r_arm_m
     built, expected = (build.fdd_params(f, bank, r_arm).loe for f in (campaign.fdd, written))
