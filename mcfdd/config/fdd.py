@@ -25,6 +25,8 @@ class LoeDetectionConfig(Section):
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
     Two levels: detection (``detection_tau``, ``detection_contrast``, ``detection_confirm_s``: the
     fault-free model rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
+    The gate on the best-fitting model's load and the noise-relative floor are the default since
+    ``configs/tune_default.toml``'s held-out rule adopted them (README, "The default FDD tuned on its own space").
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
