@@ -5,8 +5,8 @@ and pole on the smooth tau_f / tau_d of the detection monitor's margins over sto
 histories, then scans the detection thresholds on the training set (Pareto set of false alarms,
 missed detections and detection time) and chooses the smallest alarm-free factor times a safety
 factor, or with ``tune.max_missed_fraction`` the candidate with the fewest false alarms among those
-within the miss limit (:func:`mcfdd.analysis.detection_tuning.choose_within`). The held-out campaign (another seed) runs with the configured FDD ('before') and the tuned
-one ('after') and the two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
+within the miss limit (:func:`mcfdd.analysis.detection_tuning.choose_within`). The held-out
+campaign (another seed) runs with the configured FDD ('before') and the tuned one ('after') and the two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
 """
 
 from __future__ import annotations
