@@ -6,7 +6,8 @@ histories, then scans the detection thresholds on the training set (Pareto set o
 missed detections and detection time) and chooses the smallest alarm-free factor times a safety
 factor, or with ``tune.max_missed_fraction`` the candidate with the fewest false alarms among those
 within the miss limit (:func:`mcfdd.analysis.detection_tuning.choose_within`). The held-out
-campaign (another seed) runs with the configured FDD ('before') and the tuned one ('after') and the two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
+campaign (another seed) runs with the configured FDD ('before') and the tuned one ('after') and the
+two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
 """
 
 from __future__ import annotations
