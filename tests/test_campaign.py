@@ -31,7 +31,8 @@ SHORT = {"campaign.scenarios": 320, "campaign.duration_s": 2.0, "campaign.chunk_
          "space.t_start_s": [0.2, 0.8], "space.duration_s": [0.3, 1.0], "space.hold_s": [0.2, 0.6]}
 ALARMING = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
             "fdd.loe.confirm_s": 0.0,
-            "fdd.loe.excitation_floor_deg": 0.005}
+            "fdd.loe.excitation_floor_deg": 0.005, "fdd.loe.excitation_noise_factor": 0.0,
+            "fdd.loe.load_gate": "fault_free"}
 N_SHORT = 320
 
 
