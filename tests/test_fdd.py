@@ -763,8 +763,8 @@ def test_detection_contrast_needs_a_better_fault_model(bank):
     fault-free model is rejected unless its ratio must also exceed the best fault model's by
     detection_contrast; a disconnected rod (the bank's no-load model) is detected with the contrast."""
     def params(contrast):
-        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.0, detection_tau=0.03,
-                                 detection_contrast=contrast, detection_confirm_s=0.5)
+        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.0, excitation_noise_factor=0.0,
+                                 detection_tau=0.03, detection_contrast=contrast, detection_confirm_s=0.5)
         return build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
 
     u_c, u = noisy_hold(bank, 0)
