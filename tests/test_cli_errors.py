@@ -479,7 +479,8 @@ def test_false_alarms_are_counted_per_fault_free_run_loe_and_any_apart(small, tm
     detection, any alarm, false identification), per run and per hour of scored time, in the table, the printed
     lines and summary.md."""
     alarming = {"fdd.loe.tau": 0.03, "fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0,
-                "fdd.loe.confirm_s": 0.0, "fdd.loe.excitation_floor_deg": 0.005}
+                "fdd.loe.confirm_s": 0.0, "fdd.loe.excitation_floor_deg": 0.005, "fdd.loe.excitation_noise_factor": 0.0,
+                "fdd.loe.load_gate": "fault_free"}
     out = tmp_path / "c"
     assert cli.main(["campaign", str(small), "--out", str(out),
                      *[a for k, v in alarming.items() for a in ("--set", f"{k}={v}")]]) == 0

@@ -72,7 +72,8 @@ def two_fdds(tmp_path_factory):
     """One small space run with the default FDD (a) and with a low detection threshold and floor (b)."""
     folder = tmp_path_factory.mktemp("compare")
     path = small_config(folder, n=128)
-    low = {"fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.excitation_floor_deg": 0.01}
+    low = {"fdd.loe.detection_tau": 0.03, "fdd.loe.detection_contrast": 0.0, "fdd.loe.excitation_floor_deg": 0.01,
+           "fdd.loe.excitation_noise_factor": 0.0, "fdd.loe.load_gate": "fault_free"}
     a = mcfdd.run_campaign(mcfdd.load_config(path), out=folder / "a", progress=False)
     b = mcfdd.run_campaign(mcfdd.load_config(path, overrides=low), out=folder / "b", progress=False)
     return folder, a, b

@@ -161,7 +161,7 @@ def test_not_utf8_file_names_the_file(tmp_path):
 EXPECTED_KIND = {"fault_free": "campaign", "loe_campaign": "campaign", "stall_campaign": "campaign",
                  "fig3": "simulate", "fig5": "simulate", "fig4": "sweep", "lpv_aileron": "fit-lpv",
                  "tune_loe": "tune", "tune_stall": "tune", "tune_validation": "tune", "tune_default": "tune",
-                 "tune_validation_rcam": "tune", "worst_case_stall": "worst-case",
+                 "tune_validation_rcam": "tune", "tune_validation_kci10": "tune", "worst_case_stall": "worst-case",
                  "worst_case_stall_detect": "worst-case", "worst_case_loe_detection": "worst-case",
                  "worst_case_loe_detection_free": "worst-case", "rcam_campaign": "campaign",
                  "rcam_campaign_roll_axis": "campaign", "rcam_simulate": "simulate", "validation": "campaign",

@@ -763,8 +763,8 @@ def test_detection_contrast_needs_a_better_fault_model(bank):
     fault-free model is rejected unless its ratio must also exceed the best fault model's by
     detection_contrast; a disconnected rod (the bank's no-load model) is detected with the contrast."""
     def params(contrast):
-        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.0, detection_tau=0.03,
-                                 detection_contrast=contrast, detection_confirm_s=0.5)
+        loe = LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.0, excitation_noise_factor=0.0,
+                                 detection_tau=0.03, detection_contrast=contrast, detection_confirm_s=0.5)
         return build.fdd_params(FddConfig(loe=loe), bank, r_arm_m=R_ARM_M)
 
     u_c, u = noisy_hold(bank, 0)
@@ -784,7 +784,8 @@ def test_options_off_are_not_built_and_equal_the_options_at_zero(bank):
     u_c = smooth_command(n, 3.0)
     u, _ = lpv_plant(eq4_gains(bank, VCAS_M_S, ALT_M), 4, u_c, u_c[0])
     u = u[:-1]
-    off = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.5)), bank,
+    off = build.fdd_params(FddConfig(loe=LoeDetectionConfig(max_load_fraction=1.0, excitation_floor_deg=0.5,
+                                                         excitation_noise_factor=0.0)), bank,
                            r_arm_m=R_ARM_M)
     assert off.loe.tau_schedule is None and off.loe.excitation_load_fraction is None
     assert off.loe.excitation_noise_factor is None and off.loe.max_load_fraction is None
@@ -884,7 +885,7 @@ def test_noise_floor_decides_on_a_quiet_sensor_what_an_absolute_floor_hides(bank
             return state, out.excited
         return np.asarray(jax.jit(lambda: jax.lax.scan(body, system.init(params, u[0]), (u_c, u, t))[1])())
 
-    absolute = LoeDetectionConfig(excitation_floor_deg=0.1)
+    absolute = LoeDetectionConfig(excitation_floor_deg=0.1, excitation_noise_factor=0.0)
     relative = LoeDetectionConfig(excitation_floor_deg=0.0, excitation_noise_factor=2.0)
     assert not excited(absolute, 0.02)[dither].any() and not excited(absolute, 0.07)[at_rest].any()
     quiet = excited(relative, 0.02)

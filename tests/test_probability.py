@@ -32,6 +32,9 @@ from mcfdd.workflows.common import precision
 
 LOWERED = """
 [fdd.loe]
+load_gate = "fault_free"
+excitation_floor_deg = 0.15
+excitation_noise_factor = 0.0
 detection_tau = 0.004
 detection_contrast = 0.0
 detection_confirm_s = 0.0

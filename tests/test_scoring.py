@@ -38,6 +38,7 @@ HARSH = (SMALL.format(n=24).replace("vcas_kt = [200.0, 360.0]", "vcas_kt = [300.
          .replace("amplitude = [0.5, 1.0]", "amplitude = [0.8, 1.0]")
          .replace("t_detec_s = 120.0", "t_detec_s = 120.0\nstall_grace_s = 0.2")
          + "\n[fdd.loe]\nconfirm_s = 0.0\ntau = 0.05\nexcitation_floor_deg = 0.01\ndetection_confirm_s = 0.3\n"
+         "excitation_noise_factor = 0.0\nload_gate = \"fault_free\"\n"
          "detection_contrast = 0.0\ndetection_tau = 0.04\n\n[fdd.stall.signal]\nrate_min_deg_s = 60.0\n"
          "command_min_deg = 2.0\n"
          "position_min_deg = 2.0\nerror_min_deg = 0.2\n\n[fdd.stall.model]\ntau_deg = 40.0\n")
@@ -446,7 +447,8 @@ def test_every_margin_is_positive_exactly_for_its_flag_on_2048_runs(name):
         "space.duration_s": [2.0, 6.0], "space.hold_s": [1.0, 3.0], "space.vcas_kt": [300.0, 380.0],
         "space.hinge_scale": [1.1, 1.4], "evaluation.settle_s": 1.0, "evaluation.stall_grace_s": 0.2,
         "fdd.loe.detection_tau": 0.04, "fdd.loe.detection_contrast": 0.0, "fdd.loe.detection_confirm_s": 0.2,
-        "fdd.loe.excitation_floor_deg": 0.02, "fdd.stall.tau_deg": 1.4, "fdd.stall.model.tau_deg": 150.0,
+        "fdd.loe.excitation_floor_deg": 0.02, "fdd.loe.excitation_noise_factor": 0.0,
+        "fdd.loe.load_gate": "fault_free", "fdd.stall.tau_deg": 1.4, "fdd.stall.model.tau_deg": 150.0,
         "fdd.stall.signal.rate_min_deg_s": 60.0, "fdd.stall.signal.command_min_deg": 2.0,
         "fdd.stall.signal.position_min_deg": 2.0, "fdd.stall.signal.error_min_deg": 0.2})
     with precision(name):

@@ -203,6 +203,9 @@ duration_s = 6.0
 settle_s = 0.5
 
 [fdd.loe]
+load_gate = "fault_free"
+excitation_floor_deg = 0.15
+excitation_noise_factor = 0.0
 detection_tau = 0.06
 
 [space]

@@ -10,6 +10,7 @@ smooth tau_d <= tau_d + T log steps.
 """
 
 import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -160,8 +161,45 @@ def test_pareto_set_and_choice_against_brute_force():
     assert dt.choose(scales, [2, 2, 1, 1, 1], 1.2) == pytest.approx(2.0 * 1.2)
 
 
+def reference_within(scales, fa, missed, time, n_must, limit):
+    """The miss-limited choice written out: filter, then the best by the rule's order, one key at a time."""
+    t = [math.inf if math.isnan(x) else x for x in time]
+    idx = list(range(len(scales)))
+    qualified = [i for i in idx if n_must == 0 or missed[i] / n_must <= limit]
+    pool, order = (qualified, ("fa", "t", "missed")) if qualified else (idx, ("missed", "fa", "t"))
+    values = {"fa": fa, "t": t, "missed": missed}
+    for name in order:
+        best = min(values[name][i] for i in pool)
+        pool = [i for i in pool if values[name][i] == best]
+    return max(scales[i] for i in pool), bool(qualified)
+
+
+def test_miss_limited_choice_against_an_independent_selection():
+    scales = [0.5, 0.7, 1.0, 1.4, 2.0]
+    # 20 must-detect runs, at most 10 % missed: candidates 0-2 qualify; 1 and 2 have no alarm, 1 is faster
+    fa, missed, time = [4, 0, 0, 0, 0], [0, 1, 2, 3, 9], [5.0, 5.5, 6.0, 7.0, np.nan]
+    assert dt.choose_within(scales, fa, missed, time, 20, 0.1) == (0.7, True)
+    # equal alarms and time: the fewer missed, then the larger factor
+    assert dt.choose_within(scales, [1, 1, 1, 0, 0], [0, 0, 1, 5, 6], [5.0] * 5, 20, 0.05) == (0.7, True)
+    # the limit is inclusive (2 of 20 is 10 %); none within 1 %: the fewest missed, then the fewest alarms
+    assert dt.choose_within(scales, fa, missed, time, 20, 0.01) == (0.5, True)
+    assert dt.choose_within(scales, fa, [1, 1, 2, 3, 9], time, 20, 0.01) == (0.7, False)
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        k = int(rng.integers(2, 9))
+        scales = np.sort(rng.choice(np.geomspace(0.25, 2.0, 24), k, replace=False))
+        fa, missed = rng.integers(0, 3, k), rng.integers(0, 6, k)
+        time = rng.choice([4.0, 5.0, np.nan], k)
+        n_must, limit = int(rng.integers(0, 12)), float(rng.choice([0.0, 0.1, 0.25, 0.5]))
+        got = dt.choose_within(scales, fa, missed, time, n_must, limit)
+        assert got == reference_within(list(scales), list(fa), list(missed), list(time), n_must, limit)
+
+
 @pytest.mark.parametrize("text, key", [
     ("[tune]\ndetector = 'stall'\nlevel = 'detection'\n", "tune.level"),
+    ("[tune]\nmax_missed_fraction = 1.5\nlevel = 'detection'\ndetector = 'loe'\n", "tune.max_missed_fraction"),
+    ("[tune]\nmax_missed_fraction = -0.1\nlevel = 'detection'\ndetector = 'loe'\n", "tune.max_missed_fraction"),
+    ("[tune]\nmax_missed_fraction = 0.05\n", "tune.max_missed_fraction"),
     ("[tune]\nlevel = 'signature'\n", "tune.level"),
     ("[tune]\nmust_detect_kinds = ['jamming']\n", r"tune.must_detect_kinds\[0\]"),
     ("[tune]\nmust_detect = 'some'\n", "tune.must_detect"),
@@ -191,13 +229,23 @@ def test_tuner_runs_on_the_full_aircraft(tmp_path):
     assert all(np.isfinite(g) for g in grad.values()) and any(g != 0.0 for g in grad.values())
 
 
-def test_detection_tuning_end_to_end(tmp_path):
+@pytest.mark.parametrize("limit", [None, 0.5])
+def test_detection_tuning_end_to_end(tmp_path, limit):
     import mcfdd
 
-    result = mcfdd.tune(tiny(tmp_path, iterations=2, duration=3.0), progress=False)
+    path = tiny(tmp_path, iterations=2, duration=3.0)
+    if limit is not None:
+        path.write_text(path.read_text().replace("[tune]\n", f"[tune]\nmax_missed_fraction = {limit}\n"))
+    result = mcfdd.tune(path, progress=False)
     scan = result.threshold_scan
     assert scan["chosen"].sum() == 1 and scan["pareto"].any()
     chosen = scan[scan["chosen"]].iloc[0]
+    if limit is not None:  # the chosen row is the miss-limited choice among the scanned rows, no safety factor
+        n_must = int(re.search(r"tau_d over the (\d+) ", result.report_text).group(1))
+        assert n_must > 0 and f"at most {limit} of the {n_must} must-detect runs missed" in result.report_text
+        want = reference_within(list(scan["scale"]), list(scan["training_false_alarms"]),
+                                list(scan["training_missed"]), list(scan["training_detection_time_s"]), n_must, limit)
+        assert chosen["scale"] == want[0]
     assert result.fdd.loe.detection_tau == pytest.approx(chosen["detection_tau"], rel=1e-5)
     assert list(result.validation["fdd"]) == ["before", "after"]
     assert set(result.comparison.outcomes["outcome"]) >= {"loe_false_alarm", "missed_disconnection_loaded"}
@@ -212,7 +260,8 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 @pytest.mark.parametrize("tune_name, shipped_name", [("tune_validation", "validation"),
                                                      ("tune_default", "loe_campaign"),
-                                                     ("tune_validation_rcam", "validation_rcam")])
+                                                     ("tune_validation_rcam", "validation_rcam"),
+                                                     ("tune_validation_kci10", "validation_kci10")])
 def test_shipped_detection_tune_config_holds_out_enough_fault_free_runs(tune_name, shipped_name):
     cfg = config.load(config.TuneConfig, CONFIGS / f"{tune_name}.toml")
     shipped = config.load(config.CampaignConfig, CONFIGS / f"{shipped_name}.toml")
@@ -249,8 +298,8 @@ def documented_default_fdd() -> dict:
 
 def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path):
     """loe_campaign.toml has no [fdd]: its LOE bank is built from the defaults, which are the FDD that
-    `mcfdd tune configs/tune_default.toml`'s held-out verdict kept, as its comment writes it (every
-    detection-level number and option); the tuner's start, written out in tune_default.toml, is another."""
+    `mcfdd tune configs/tune_default.toml`'s held-out rule adopted, as its comment writes it (every
+    detection-level number and option): the tuner's start, written out in tune_default.toml."""
     documented = documented_default_fdd()
     assert set(documented) >= {"load_gate", "pole_1_s", "evaluator", "detection_tau", "detection_contrast",
                                "excitation_floor_deg", "excitation_noise_factor", "detection_confirm_s"}
@@ -259,7 +308,7 @@ def test_a_config_without_fdd_builds_the_default_tune_default_documents(tmp_path
     written = config.load_fdd_fragment(tmp_path / "fdd.toml")
     assert campaign.fdd == config.FddConfig() == written
     start = config.load(config.TuneConfig, CONFIGS / "tune_default.toml").fdd
-    assert start != campaign.fdd
+    assert start == campaign.fdd
     bank, _ = load_bank(campaign.fdd, np.float64)
     r_arm = build.plant_model(campaign.plant).actuator.r_arm_m
     built, expected = (build.fdd_params(f, bank, r_arm).loe for f in (campaign.fdd, written))

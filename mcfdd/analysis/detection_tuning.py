@@ -32,7 +32,9 @@ The thresholds are then placed by a scan (:func:`scan`): the detection threshold
 (``detection_tau`` and ``detection_contrast`` together) scaled by candidate factors, each scored
 by the hard monitors on the training set (false alarms, missed detections of the must-detect
 runs, median detection time); the Pareto set of the three is reported, and the smallest factor
-from which no candidate gives a training false alarm, times a safety factor, is chosen.
+from which no candidate gives a training false alarm, times a safety factor, is chosen
+(:func:`choose`), or, with a miss limit, the candidate with the fewest false alarms among those that
+miss at most that fraction of the must-detect runs (:func:`choose_within`).
 """
 
 from __future__ import annotations
@@ -199,3 +201,23 @@ def choose(scales, false_alarms, safety: float) -> float:
     scales, fa = np.asarray(scales, float), np.asarray(false_alarms)
     clean = np.flatnonzero(np.cumsum((fa > 0)[::-1])[::-1] == 0)
     return float((scales[clean[0]] if len(clean) else scales[-1]) * safety)
+
+
+def choose_within(scales, false_alarms, missed, detection_time, n_must: int, max_missed_fraction: float):
+    """The chosen threshold factor under a miss limit, and whether any candidate met the limit.
+
+    Among the candidates (K,) that miss at most ``max_missed_fraction`` of the ``n_must`` must-detect
+    runs (``missed / n_must <= max_missed_fraction``; every candidate when ``n_must`` is 0): the fewest
+    false alarms, ties to the faster median detection (nan counts as the slowest), then to the fewest
+    missed, then to the larger factor. When none qualifies: the fewest missed, ties as above after it
+    (fewest false alarms, faster, larger). The factor is a scanned candidate itself (no safety factor).
+    """
+    scales = np.asarray(scales, float)
+    fa, miss = np.asarray(false_alarms, float), np.asarray(missed, float)
+    time = np.nan_to_num(np.asarray(detection_time, float), nan=np.inf)
+    ok = miss / n_must <= max_missed_fraction if n_must > 0 else np.ones(len(scales), bool)
+    qualified = bool(ok.any())
+    # np.lexsort sorts by its last key first
+    keys = (-scales, miss, time, fa) if qualified else (-scales, time, fa, miss)
+    first = next(i for i in np.lexsort(keys) if ok[i] or not qualified)
+    return float(scales[first]), qualified

@@ -25,6 +25,8 @@ class LoeDetectionConfig(Section):
     transients of a few seconds, so gamma = 1; a slow filter pole keeps the noise band narrow.
     Two levels: detection (``detection_tau``, ``detection_contrast``, ``detection_confirm_s``: the
     fault-free model rejected) and identification (``tau``, ``tau_schedule``, ``confirm_s``: the signature (15)).
+    The gate on the best-fitting model's load and the noise-relative floor are the default since
+    ``configs/tune_default.toml``'s held-out rule adopted them (README, "The default FDD tuned on its own space").
     """
 
     pole_1_s: float = spec(0.5, lo=0.0, lo_open=True, hi=1000.0, doc="filter pole a of every filter")
@@ -44,14 +46,14 @@ class LoeDetectionConfig(Section):
                                      "while theta_0 / ||u|| is also this far above the smallest ratio of the fault "
                                      "models (a fault model explains the rod better; sensor noise at the excitation "
                                      "floor raises all ratios alike)")
-    excitation_floor_deg: float = spec(0.15, lo=0.0, doc="no decision (detection or identification) while ||u|| "
+    excitation_floor_deg: float = spec(0.05, lo=0.0, doc="no decision (detection or identification) while ||u|| "
                                        "(the evaluated low-passed |u_c - u|) is below this: sensor noise alone gives "
                                        "about 0.8 x its RMS (0.06 deg at 0.07 mm)")
     excitation_load_fraction: float = spec(0.0, lo=0.0, hi=1.0, doc="load-weighted excitation: the floor "
                                            "applies to ||u|| with each sample weighted by min(1, estimated hinge-load "
                                            "fraction / this), so decisions are made only where the fault-free and "
                                            "surface-loss models differ; 0 weighs every sample 1")
-    excitation_noise_factor: float = spec(0.0, lo=0.0, hi=100.0, doc="noise-relative floor: the excitation floor "
+    excitation_noise_factor: float = spec(2.5, lo=0.0, hi=100.0, doc="noise-relative floor: the excitation floor "
                                           "is at least this many times the run's position-sensor noise RMS, estimated "
                                           "online from the measured position (in the units of ||u||, about 0.8 x the "
                                           "RMS for a rod at rest); 0 keeps the floor absolute")
@@ -61,7 +63,7 @@ class LoeDetectionConfig(Section):
     max_load_fraction: float = spec(0.5, lo=0.0, hi=1.0, doc="residuals are not evaluated above this estimated "
                                     "hinge-load fraction (the healthy surface's, so the gate also hides a "
                                     "disconnected rod at large deflections); 1 builds no load gate")
-    load_gate: choice(("fault_free", "best_fit")) = spec("fault_free", doc="the load the gate compares with "
+    load_gate: choice(("fault_free", "best_fit")) = spec("best_fit", doc="the load the gate compares with "
                                                          "max_load_fraction: the fault-free model's estimate (the "
                                                          "healthy surface's load), or that times the surface "
                                                          "effectiveness nu2 of the bank model with the smallest "

@@ -5,9 +5,8 @@ runs over a scenario space add ``[evaluation]`` and ``[space]`` and share the sp
 (:class:`Scored`); the horizon, sample time, sub-steps, seed and precision of runs are one section
 (:class:`SimulationConfig`), which a campaign's settings extend.
 
-Over 400 lines because each command's settings (campaign, tune, worst case, probability, sensitivity)
-are validated here next to the shared sections they extend; splitting them would separate a kind
-from the rules it shares.
+Over 400 lines: one class per kind with the checks that span its sections, kept together so that a
+kind's keys and rules are read in one place.
 """
 
 from __future__ import annotations
@@ -392,6 +391,11 @@ class TuneSettings(Section):
                                             "this range, each scored on the training set")
     safety: float = spec(1.1, lo=1.0, hi=10.0, doc="detection level: the chosen factor is the smallest from "
                          "which no candidate alarms on the training set, times this")
+    max_missed_fraction: float | None = spec(
+        None, lo=0.0, hi=1.0, doc="detection level: a miss limit; when set, the chosen factor is the scanned "
+        "candidate with the fewest training false alarms among those that miss at most this fraction of the "
+        "must-detect runs (ties to the faster median detection), or the fewest missed if none does; safety is "
+        "then not applied")
 
 
 class TuneConfig(Scored):
@@ -414,6 +418,9 @@ class TuneConfig(Scored):
         t = self.tune
         if t.level == "detection" and t.detector != "loe":
             raise Invalid("tune.level", f"'detection' is the LOE bank's level; tune.detector is {t.detector!r}")
+        if t.max_missed_fraction is not None and t.level != "detection":
+            raise Invalid("tune.max_missed_fraction", f"{t.max_missed_fraction}; a miss limit applies to tune.level "
+                                                      f"= 'detection', not {t.level!r}")
         lo, hi = t.scan_scales
         if not 0.0 < lo < hi:
             raise Invalid("tune.scan_scales", f"{[lo, hi]}; expected 0 < low < high")

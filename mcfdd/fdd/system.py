@@ -261,7 +261,8 @@ def step(params: FddParams, state: FddState, u_c, u, vcas_m_s, altitude_m, t_s, 
     load = load_fraction(bank, k)
     valid = jnp.abs(u_c - u) <= loe.linear_range_m
     if loe.max_load_fraction is not None:
-        gated = load if loe.load_scales is None else load * loe.load_scales[jnp.argmin(state.bank_xi)]
+        # asarray: the scales may be a host constant (parameters closed over, not passed to jit)
+        gated = load if loe.load_scales is None else load * jnp.asarray(loe.load_scales)[jnp.argmin(state.bank_xi)]
         valid = (jnp.abs(gated) <= loe.max_load_fraction) & valid
     running = valid & state.was_valid
     bank_xq = jnp.where(running, state.bank_xq, residual.init(u))

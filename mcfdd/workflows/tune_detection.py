@@ -4,8 +4,10 @@
 and pole on the smooth tau_f / tau_d of the detection monitor's margins over stored plant
 histories, then scans the detection thresholds on the training set (Pareto set of false alarms,
 missed detections and detection time) and chooses the smallest alarm-free factor times a safety
-factor. The held-out campaign (another seed) runs with the configured FDD ('before') and the tuned
-one ('after') and the two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
+factor, or with ``tune.max_missed_fraction`` the candidate with the fewest false alarms among those
+within the miss limit (:func:`mcfdd.analysis.detection_tuning.choose_within`). The held-out
+campaign (another seed) runs with the configured FDD ('before') and the tuned one ('after') and the
+two are compared run by run (:func:`mcfdd.compare`, McNemar's exact test).
 """
 
 from __future__ import annotations
@@ -98,7 +100,11 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
     scales = np.geomspace(lo, hi, ts.threshold_candidates)
     start = time.perf_counter()
     first = jax.device_get(dt.scan(theta, fdd_params, settings, data, must, np.asarray(scales, dtype), tr.dt_s))
-    scale = dt.choose(scales, first["false_alarms"], ts.safety)
+    if ts.max_missed_fraction is None:
+        scale, qualified = dt.choose(scales, first["false_alarms"], ts.safety), None
+    else:
+        scale, qualified = dt.choose_within(scales, first["false_alarms"], first["missed"],
+                                            first["detection_time_s"], int(must.sum()), ts.max_missed_fraction)
     scales_all = np.unique(np.append(scales, scale))
     got = jax.device_get(dt.scan(theta, fdd_params, settings, data, must, np.asarray(scales_all, dtype), tr.dt_s))
     t_scan = time.perf_counter() - start
@@ -116,6 +122,9 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
     note(f"  tuned in {t_tune:.1f} s; iteration {best}: tau_f {b['tau_f']:.4g}, tau_d {b['tau_d']:.4g} "
          f"({'positive' if positive else 'no positive'} gap); thresholds x{scale:.4g} chosen from "
          f"{len(scales)} candidates in {t_scan:.1f} s", progress)
+    if qualified is False:
+        note(f"  no candidate misses at most {ts.max_missed_fraction} of the {int(must.sum())} must-detect runs: "
+             f"the one with the fewest missed taken", progress)
     old, new = cfg.fdd.loe, tuned.loe
     rows = [("alpha", old.evaluator.alpha, new.evaluator.alpha), ("beta", old.evaluator.beta, new.evaluator.beta),
             ("gamma_1_s", old.evaluator.gamma_1_s, new.evaluator.gamma_1_s)]
@@ -130,8 +139,8 @@ def tune_detection(cfg: config.TuneConfig, source, progress: bool):
             validation.loc[validation["fdd"] == label, f"held_out_{k}"] = v
     paired = compare(campaigns["before"], campaigns["after"], ("before", "after"))
     meta = io.provenance(config.to_json(cfg), tr.seed, models=list(names), validation_seed=str(cfg.validation.seed))
-    text = markdown(cfg, source, n, int(must.sum()), history, best, positive, scan, parameters, validation, paired,
-                    {"plant": t_plant, "tune": t_tune, "scan": t_scan, "validation": t_val}, compiles, meta)
+    text = markdown(cfg, source, n, int(must.sum()), history, best, positive, qualified, scan, parameters, validation,
+                    paired, {"plant": t_plant, "tune": t_tune, "scan": t_scan, "validation": t_val}, compiles, meta)
     out = TuneResult("loe", tuned, history, parameters, validation, scan, campaigns, compiles, text, "theta/||u||",
                      meta, source)
     out.comparison, out.level = paired, "detection"
@@ -151,8 +160,18 @@ def _table(df: pd.DataFrame) -> list[str]:
             *("| " + " | ".join(_cell(v) for v in r) + " |" for r in df.itertuples(index=False))]
 
 
-def markdown(cfg, source, n, n_must, history, best, positive, scan, parameters, validation, paired, times, compiles,
-             meta) -> str:
+def _rule(ts, n_must: int, qualified) -> str:
+    """The threshold choice of a detection-level tuning, in words."""
+    if ts.max_missed_fraction is None:
+        return f"the smallest factor from which no candidate alarms on the training set, times {ts.safety}."
+    limit = f"at most {ts.max_missed_fraction} of the {n_must} must-detect runs missed"
+    return (f"the candidate with the fewest training false alarms among those with {limit} (ties to the faster "
+            f"median detection)." + ("" if qualified else f" NO candidate has {limit}: the one with the fewest "
+                                                          f"missed taken."))
+
+
+def markdown(cfg, source, n, n_must, history, best, positive, qualified, scan, parameters, validation, paired, times,
+             compiles, meta) -> str:
     """report.md of a detection-level tuning."""
     ts, tr, va = cfg.tune, cfg.training, cfg.validation
     must = (f"{ts.must_detect} must-detect runs" + (f" of {', '.join(ts.must_detect_kinds)}" if ts.must_detect_kinds
@@ -172,8 +191,8 @@ def markdown(cfg, source, n, n_must, history, best, positive, scan, parameters, 
              f"{b['tau_d']:.4g}: "
              + ("a positive gap." if positive else "NO positive gap on the training set; the trade-off below."),
              "", f"Thresholds: detection_tau and detection_contrast scaled by {ts.threshold_candidates} factors in "
-             f"{list(ts.scan_scales)} ({times['scan']:.1f} s); chosen: the smallest factor from which no candidate "
-             f"alarms on the training set, times {ts.safety}.", "", "## Parameters", "", *_table(parameters), "",
+             f"{list(ts.scan_scales)} ({times['scan']:.1f} s); chosen: {_rule(ts, n_must, qualified)}", "",
+             "## Parameters", "", *_table(parameters), "",
              "## Training set, per iteration (first, chosen, last)", "",
              *_table(history.iloc[sorted({0, best, len(history) - 1})][
                  ["iteration", "smooth_gap", "tau_f", "tau_d", "gap", *COUNTS]]),
