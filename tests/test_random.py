@@ -1,4 +1,5 @@
-"""Counter-based normals (mcfdd.analysis.noise): distribution, independence, keying by (seed, scenario, step)."""
+"""Counter-based normals (mcfdd.analysis.noise): distribution, independence, keying by (seed, scenario, step),
+for both transforms (the roll axis's inverse CDF, the full aircraft's Box-Muller pairs)."""
 
 from __future__ import annotations
 
@@ -10,19 +11,21 @@ import scipy.special
 import scipy.stats
 
 from mcfdd.analysis import noise, simulate
-from mcfdd.plant import closed_loop
+from mcfdd.plant import closed_loop, rcam_loop
 
-N_SCENARIOS, N_STEPS, DIM = 256, 200, closed_loop.NOISE_DIM
+N_SCENARIOS, N_STEPS = 256, 200
+DIMS = {"inverse_cdf": closed_loop.NOISE_DIM, "box_muller": rcam_loop.NOISE_DIM}  # 4 and 7 (an odd count)
 
 
-@pytest.fixture(scope="module")
-def draws():
-    """(scenarios, steps, dim) float32 normals of seed 3, as a campaign's steps draw them."""
+@pytest.fixture(scope="module", params=noise.METHODS)
+def draws(request):
+    """(scenarios, steps, dim) float32 normals of seed 3, as a campaign's steps draw them, by each method."""
     keys = simulate.run_keys(3, np.arange(N_SCENARIOS))
+    method = request.param
 
     def run(key):
         words = noise.key_words(key)
-        return jax.vmap(lambda k: noise.normals(words, k, DIM, jnp.float32))(jnp.arange(N_STEPS))
+        return jax.vmap(lambda k: noise.normals(words, k, DIMS[method], jnp.float32, method))(jnp.arange(N_STEPS))
 
     out = np.asarray(jax.jit(jax.vmap(run))(keys))
     assert out.dtype == np.float32
@@ -49,7 +52,7 @@ def test_tail_frequencies_match_the_normal(draws, level):
 
 def test_kolmogorov_smirnov_against_the_normal(draws):
     assert scipy.stats.kstest(draws.ravel(), "norm").pvalue > 1e-3
-    for j in range(DIM):  # every component of a step on its own
+    for j in range(draws.shape[-1]):  # every component of a step on its own
         assert scipy.stats.kstest(draws[:, :, j].ravel(), "norm").pvalue > 1e-3
 
 
@@ -63,13 +66,20 @@ def test_no_correlation_between_neighbouring_scenarios_steps_and_components(draw
     assert abs(corr(draws[..., 1:], draws[..., :-1])) < bound  # component j and j + 1
     assert abs(corr(draws[:, 1:, 0], draws[:, :-1, -1])) < bound  # last of step k, first of step k + 1
     assert abs(corr(draws[1:, :, 0] ** 2, draws[:-1, :, 0] ** 2)) < bound  # nor in magnitude
+    pair_bound = 4.5 / np.sqrt(draws[..., 0].size)
+    for j in range(draws.shape[-1] - 1):  # every pair of components, in magnitude too (a Box-Muller pair
+        for i in range(j + 1, draws.shape[-1]):  # shares its radius: uncorrelated squares, as independence needs)
+            assert abs(corr(draws[..., i], draws[..., j])) < pair_bound
+            assert abs(corr(draws[..., i] ** 2, draws[..., j] ** 2)) < pair_bound
 
 
-def test_a_scenarios_numbers_depend_on_seed_scenario_and_step_only():
+@pytest.mark.parametrize("method", noise.METHODS)
+def test_a_scenarios_numbers_depend_on_seed_scenario_and_step_only(method):
     def normals(seed, ids, steps):
         keys = simulate.run_keys(seed, ids)
         return np.asarray(jax.vmap(lambda key: jax.vmap(
-            lambda k: noise.normals(noise.key_words(key), k, DIM, jnp.float32))(jnp.asarray(steps)))(keys))
+            lambda k: noise.normals(noise.key_words(key), k, DIMS[method], jnp.float32, method))(
+                jnp.asarray(steps)))(keys))
 
     whole = normals(5, np.arange(64), np.arange(50))
     alone = normals(5, np.array([17]), np.arange(50))
@@ -78,14 +88,16 @@ def test_a_scenarios_numbers_depend_on_seed_scenario_and_step_only():
     assert not np.any(normals(6, np.array([17]), np.arange(50))[0] == whole[17])  # another seed: other numbers
 
 
-def test_scan_steps_feeds_step_k_its_own_normals():
+@pytest.mark.parametrize("method", noise.METHODS)
+def test_scan_steps_feeds_step_k_its_own_normals(method):
     key = simulate.run_keys(2, [9])[0]
 
     def body(c, k, z):
         return c, (k, z)
 
-    _, (ks, zs) = simulate.scan_steps(body, 0.0, key, 30, DIM)
-    expected = np.stack([np.asarray(noise.normals(noise.key_words(key), k, DIM, zs.dtype)) for k in range(30)])
+    _, (ks, zs) = simulate.scan_steps(body, 0.0, key, 30, DIMS[method], method=method)
+    expected = np.stack([np.asarray(noise.normals(noise.key_words(key), k, DIMS[method], zs.dtype, method))
+                         for k in range(30)])
     np.testing.assert_array_equal(np.asarray(ks), np.arange(30))
     np.testing.assert_array_equal(np.asarray(zs), expected)
 
@@ -100,3 +112,26 @@ def test_transform_is_the_normal_quantile_to_float32_accuracy():
     np.testing.assert_allclose(z, reference, rtol=2e-5, atol=2e-6)
     assert z[0] == -z[4] and abs(z[0]) < 5.4  # symmetric; the largest normal it can give
     assert np.all(z != 0.0)
+
+
+def test_box_muller_is_the_pair_transform_of_the_step_bits():
+    """An independent NumPy Box-Muller of the hash words (float64) against the float32 normals of a step."""
+    words = noise.key_words(simulate.run_keys(4, [11])[0])
+    for step in (0, 1, 977):
+        b = np.asarray(noise.bits(words, step, 8)).astype(np.int64)  # 7 normals: 4 pairs of words
+        m = b >> 9
+        radius = np.sqrt(-2.0 * np.log((2.0 * m[:4] + 1.0) / 2.0**24))
+        angle = 2.0 * np.pi * m[4:] / 2.0**23
+        reference = np.concatenate([radius * np.cos(angle), radius[:3] * np.sin(angle[:3])])
+        z = np.asarray(noise.normals(words, step, 7, jnp.float32, "box_muller")).astype(np.float64)
+        np.testing.assert_allclose(z, reference, rtol=1e-5, atol=1e-6)
+
+
+def test_box_muller_extremes_and_an_unknown_method():
+    b = jnp.asarray(np.array([0, 2**32 - 1, 0, 2**31], dtype=np.uint32))
+    z = np.asarray(noise.box_muller(b, 4, jnp.float32)).astype(np.float64)
+    largest = np.sqrt(-2.0 * np.log(2.0**-24))  # the smallest u, (2 0 + 1) 2^-24
+    np.testing.assert_allclose(z, [largest, -np.sqrt(-2.0 * np.log(1.0 - 2.0**-24)), 0.0, 0.0], rtol=1e-5, atol=1e-6)
+    assert abs(largest - 5.77) < 0.01
+    with pytest.raises(ValueError, match="unknown normal generator 'polar'"):
+        noise.normals(noise.key_words(simulate.run_keys(0, [0])[0]), 0, 7, jnp.float32, "polar")

@@ -55,6 +55,7 @@ from mcfdd.plant.uncertainty import scaled
 
 INIT_NOISE_DIM = turbulence.GUST_NORMALS  # normals at the start: the forming filters' states
 NOISE_DIM = turbulence.GUST_NORMALS + 1  # normals per step: six for the gusts, one for the position sensor
+NORMALS = "box_muller"  # how a campaign run draws them (:func:`mcfdd.analysis.noise.normals`)
 
 
 class Surface(NamedTuple):
