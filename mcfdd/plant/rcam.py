@@ -236,7 +236,7 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     p_air, q_air, r_air = once((state.p - gust.p, state.q - gust.q, state.r - gust.r), one)
 
     tail_incidence = incidence_0 + (1.0 - params.downwash_slope) * alpha  # alpha - eps + delta_t
-    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + 1.3 * q_air * lt / speed)
+    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + (1.3 * lt / c) * chord_v * q_air)
     cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
     cl, cd, tail_incidence = once((cl, cd, tail_incidence), one)
     cy = -1.6 * beta + side_0

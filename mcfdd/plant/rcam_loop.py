@@ -221,19 +221,20 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
                                            dt_s, one)
     gust = once(gust, one)
     air = rcam.air_data(b, gust)
-    _, pressure, density, sound = once(atmosphere.isa(b.altitude), one)
+    _, pressure, density, sound = atmosphere.isa(b.altitude)
+    pressure, density = once((pressure, density), one)  # the speed of sound is read once, as a divisor
     vcas = atmosphere.calibrated_airspeed_at_pressure(air.airspeed / sound, pressure)
     qbar = 0.5 * density * air.airspeed**2
     sphi, cphi, sth, cth = once((jnp.sin(b.phi), jnp.cos(b.phi), jnp.sin(b.theta), jnp.cos(b.theta)), one)
     climb = b.u * sth - (b.v * sphi + b.w * cphi) * cth
     gamma = jnp.arcsin(jnp.clip(climb / speed, -1.0, 1.0))
-    air, vcas, qbar, density, gamma = once((air, vcas, qbar, density, gamma), one)
+    air, vcas, qbar, gamma = once((air, vcas, qbar, gamma), one)
 
     # the surfaces where the sample starts (the monitored aileron at its rod, its power scaled by nu2)
     delta = state.actuator.x_m / act.r_arm_m
     nu = actuator.active_nu(params.fault, t_s)[1]
     aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, nu)
-    controls = once(rcam.RcamControls(aileron, state.stabiliser, state.rudder, state.throttle, state.throttle), one)
+    controls = rcam.RcamControls(once(aileron, one), state.stabiliser, state.rudder, state.throttle, state.throttle)
     rates = once(rcam.derivatives(params.rcam, b, controls, density, gust, one, params.body), one)
     g = params.rcam.gravity_m_s2
     nz = once(-(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g, one)
