@@ -118,8 +118,9 @@ def test_box_muller_is_the_pair_transform_of_the_step_bits():
     """An independent NumPy Box-Muller of the hash words (float64) against the float32 normals of a step."""
     words = noise.key_words(simulate.run_keys(4, [11])[0])
     for step in (0, 1, 977):
-        b = np.asarray(noise.bits(words, step, 8)).astype(np.int64)  # 7 normals: 4 pairs of words
-        m = b >> 9
+        w = [int(x) for x in np.asarray(noise.bits(words, step, 6))]  # 7 normals: 4 pairs of 23-bit uniforms
+        m = [x >> 9 for x in w] + [(w[i] % 512) * 2**14 + (w[2 + i] % 512) * 2**5 + w[4 + i] % 32 for i in range(2)]
+        m = np.asarray(m, dtype=np.float64)
         radius = np.sqrt(-2.0 * np.log((2.0 * m[:4] + 1.0) / 2.0**24))
         angle = 2.0 * np.pi * m[4:] / 2.0**23
         reference = np.concatenate([radius * np.cos(angle), radius[:3] * np.sin(angle[:3])])
@@ -127,9 +128,27 @@ def test_box_muller_is_the_pair_transform_of_the_step_bits():
         np.testing.assert_allclose(z, reference, rtol=1e-5, atol=1e-6)
 
 
+def test_box_muller_uses_every_bit_of_its_words_once():
+    """Each of the 4 t uniforms of 3 t words flips with its own bits only, and 4 t x 23 of the 96 t bits serve."""
+    rng = np.random.default_rng(1)
+    b = rng.integers(0, 2**32, 6, dtype=np.uint32)
+    base = np.asarray(noise.uniform_bits(jnp.asarray(b)))
+    owners = {}
+    for word in range(6):
+        for bit in range(32):
+            flipped = b.copy()
+            flipped[word] ^= np.uint32(1 << bit)
+            changed = np.flatnonzero(np.asarray(noise.uniform_bits(jnp.asarray(flipped))) != base)
+            assert len(changed) <= 1, (word, bit)
+            if len(changed):
+                owners.setdefault(int(changed[0]), []).append((word, bit))
+    assert sorted(owners) == list(range(8)) and all(len(v) == 23 for v in owners.values())
+    assert base.min() >= 0 and base.max() < 2**23
+
+
 def test_box_muller_extremes_and_an_unknown_method():
-    b = jnp.asarray(np.array([0, 2**32 - 1, 0, 2**31], dtype=np.uint32))
-    z = np.asarray(noise.box_muller(b, 4, jnp.float32)).astype(np.float64)
+    m = jnp.asarray(np.array([0, 2**23 - 1, 0, 2**22], dtype=np.int32))
+    z = np.asarray(noise.box_muller(m, 4, jnp.float32)).astype(np.float64)
     largest = np.sqrt(-2.0 * np.log(2.0**-24))  # the smallest u, (2 0 + 1) 2^-24
     np.testing.assert_allclose(z, [largest, -np.sqrt(-2.0 * np.log(1.0 - 2.0**-24)), 0.0, 0.0], rtol=1e-5, atol=1e-6)
     assert abs(largest - 5.77) < 0.01
