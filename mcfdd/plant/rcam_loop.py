@@ -120,6 +120,7 @@ class RcamRunParams(NamedTuple):
     surfaces: SurfaceSteps
     trim: rcam.Trim
     law_trim: flight_law.Trim
+    unit_powers: flight_law.ControlPowers  # at qbar = 1 Pa, V = 1 m/s, alpha = 0 (:func:`unit_powers`)
     gust: turbulence.GustParams
     manoeuvre: manoeuvres.ManoeuvreParams
     qbar_pa: jnp.ndarray
@@ -183,6 +184,7 @@ def prepare(model: RcamModel, scenario, dt_s: float) -> RcamRunParams:
         surfaces=SurfaceSteps(*(surface_step(x, dt_s) for x in (twin_aileron(nominal), s.stabiliser, s.rudder,
                                                                  s.throttle))),
         trim=trim, law_trim=flight_law.Trim(trim.stabiliser, trim.throttle, jnp.asarray(scenario.vcas_m_s)),
+        unit_powers=unit_powers(model.aircraft, body),
         gust=turbulence.gust_params(scenario.turbulence_level, model.aircraft.span_m),
         manoeuvre=scenario.manoeuvre, qbar_pa=qbar, noise_std_m=jnp.asarray(scenario.noise_std_m),
         one=jnp.asarray(model.one))
@@ -195,15 +197,21 @@ def init(params: RcamRunParams, noise) -> RcamPlantState:
                           zero, params.trim.throttle + zero, flight_law.init(zero), turbulence.gust_init(noise))
 
 
-def _powers(params: RcamRunParams, qbar, tas, alpha) -> flight_law.ControlPowers:
-    """Nominal control powers of the healthy aircraft at the measured flight point (TP-088-3's C_n_beta(alpha))."""
-    b = params.rcam
-    roll_damping, aileron_power = aircraft.roll_derivatives(params.aircraft, qbar, tas, b.mass_kg * b.ixx_m2)
-    pitch = -qbar * 3.1 * b.tail_area_m2 * b.tail_arm_m / (b.mass_kg * b.iyy_m2)
-    yaw_scale = qbar * b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
+def unit_powers(aircraft_params: aircraft.AircraftParams, b: rcam.RcamParams) -> flight_law.ControlPowers:
+    """Per-run control powers of the healthy aircraft at qbar = 1 Pa, V = 1 m/s and alpha = 0 (:func:`_powers`)."""
+    roll_damping, aileron_power = aircraft.roll_derivatives(aircraft_params, 1.0, 1.0, b.mass_kg * b.ixx_m2)
+    pitch = -3.1 * b.tail_area_m2 * b.tail_arm_m / (b.mass_kg * b.iyy_m2)
+    yaw_scale = b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
     throttle = 2.0 * b.thrust_mass_kg * b.gravity_m_s2 / b.mass_kg
-    stiffness = yaw_scale * (1.0 - alpha * (180.0 / (15.0 * math.pi)))
-    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, stiffness)
+    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, yaw_scale)
+
+
+def _powers(unit: flight_law.ControlPowers, qbar, tas, alpha) -> flight_law.ControlPowers:
+    """Nominal control powers of the healthy aircraft at the measured flight point from the run's
+    :func:`unit_powers`: L_p in qbar / V, the control powers and N_beta in qbar (TP-088-3's C_n_beta(alpha))."""
+    return flight_law.ControlPowers(unit.roll_damping * (qbar / tas), unit.aileron * qbar, unit.stabiliser * qbar,
+                                    unit.rudder * qbar, unit.throttle,
+                                    unit.sideslip * qbar * (1.0 - alpha * (180.0 / (15.0 * math.pi))))
 
 
 def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, substeps: int,
@@ -241,7 +249,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
-    powers = once(_powers(params, qbar, air.airspeed, air.alpha), one)
+    powers = once(_powers(params.unit_powers, qbar, air.airspeed, air.alpha), one)
     law_state, cmd = flight_law.step(params.law, params.roll, params.law_trim, powers, state.law, pilot, meas,
                                      max_delta, params.authority, dt_s, one)
     cmd = once(cmd, one)
