@@ -248,15 +248,17 @@ def _second_order(z1, z2, r, decay, n1, n2, one):
     with X = 2 r and P the regularised incomplete gamma function, P(3, X) = e^-X X^3 S(X) / 6,
     S(X) = sum_k 6 X^k / (k + 3)!. Each factor is computed without cancellation (Q22 as
     -expm1(-X) + e^-X X (1 - X/2)), so the Cholesky factor holds in float32 down to r of 1e-4.
+    With y = sqrt(X S(X) / 6) the factors are L11 = e^-X/2 X y and L21 = Q12 / L11 = e^-X/2 X / (2 y).
     """
     x = 2.0 * r
-    series = 6.0 / math.factorial(_S_TERMS + 2)
+    series = 1.0 / math.factorial(_S_TERMS + 2)  # S(X) / 6
     for k in range(_S_TERMS - 2, -1, -1):
-        series = series * x + 6.0 / math.factorial(k + 3)
-    root_x, root_s = jnp.sqrt(x), jnp.sqrt(series / 6.0)
-    l11 = decay * x * root_x * root_s
-    l21 = decay * root_x / (2.0 * root_s)
-    q22 = -jnp.expm1(-x) + decay * decay * x * (1.0 - 0.5 * x)
+        series = series * x + 1.0 / math.factorial(k + 3)
+    root = jnp.sqrt(x * series)
+    decay_x = decay * x
+    l11 = decay_x * root
+    l21 = decay_x / (2.0 * root)
+    q22 = -jnp.expm1(-x) + decay * decay_x * (1.0 - 0.5 * x)
     l22 = jnp.sqrt(jnp.maximum(q22 - l21 * l21, 0.0))
     l11, l21, l22, a = once((l11, l21, l22, decay * r * (z1 + z2)), one)
     return decay * z1 + a + l11 * n1, decay * z2 - a + l21 * n1 + l22 * n2
@@ -297,8 +299,8 @@ def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6,
     step_length = dt_s * tas_m_s
     r_uv, r_w, r_p = step_length / length_uv, step_length / length_w, step_length * params.span_rate
     r_r = r_p * (4.0 / 3.0)  # tau_r = 3 b / (pi V)
-    r_uv, r_w, r_p, r_r, e_uv, e_w, e_p, e_r = once(
-        (r_uv, r_w, r_p, r_r, jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
+    r_uv, r_w, r_p, r_r = once((r_uv, r_w, r_p, r_r), one)  # stored before their exponentials read them
+    e_uv, e_w, e_p, e_r = once((jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
     zeta_v, zeta_w = once((_normalised(state.v1, state.v2), _normalised(state.w1, state.w2)), one)
     gust = Gust(sigma_uv * state.u, sigma_uv * zeta_v, sigma_w * zeta_w,
                 sigma_w * params.p_scale * length_w ** (-1.0 / 3.0) * state.p,
