@@ -87,7 +87,8 @@ def box_muller(m, dim: int, dtype=jnp.float32):
     transform (see the module docstring): the n radii from m[:n], the n angles from m[n:2 n]; the n cosine
     terms first, then the first dim - n sine terms (an odd dim leaves the last sine unused)."""
     n = -(-dim // 2)
-    u = (2 * m[:n] + 1).astype(dtype) * jnp.asarray(2.0 ** -(_MANTISSA_BITS + 1), dtype)
+    u = m[:n].astype(dtype) * jnp.asarray(2.0 ** -_MANTISSA_BITS, dtype) + jnp.asarray(2.0 ** -(_MANTISSA_BITS + 1),
+                                                                                  dtype)  # (2 m + 1) 2^-24 exactly
     radius = jnp.sqrt(jnp.asarray(-2.0, dtype) * jnp.log(u))
     angle = m[n:2 * n].astype(dtype) * jnp.asarray(2.0 * np.pi * 2.0 ** -_MANTISSA_BITS, dtype)
     return jnp.concatenate([radius * jnp.cos(angle), radius[:dim - n] * jnp.sin(angle[:dim - n])])

@@ -206,10 +206,11 @@ def unit_powers(aircraft_params: aircraft.AircraftParams, b: rcam.RcamParams) ->
     return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, yaw_scale)
 
 
-def _powers(unit: flight_law.ControlPowers, qbar, tas, alpha) -> flight_law.ControlPowers:
+def _powers(unit: flight_law.ControlPowers, qbar, qbar_per_tas, alpha) -> flight_law.ControlPowers:
     """Nominal control powers of the healthy aircraft at the measured flight point from the run's
-    :func:`unit_powers`: L_p in qbar / V, the control powers and N_beta in qbar (TP-088-3's C_n_beta(alpha))."""
-    return flight_law.ControlPowers(unit.roll_damping * (qbar / tas), unit.aileron * qbar, unit.stabiliser * qbar,
+    :func:`unit_powers`: L_p in qbar / V (``qbar_per_tas`` = rho V / 2, Pa s/m), the control powers and N_beta in
+    qbar (TP-088-3's C_n_beta(alpha))."""
+    return flight_law.ControlPowers(unit.roll_damping * qbar_per_tas, unit.aileron * qbar, unit.stabiliser * qbar,
                                     unit.rudder * qbar, unit.throttle,
                                     unit.sideslip * qbar * (1.0 - alpha * (180.0 / (15.0 * math.pi))))
 
@@ -249,7 +250,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
-    powers = once(_powers(params.unit_powers, qbar, air.airspeed, air.alpha), one)
+    powers = once(_powers(params.unit_powers, qbar, 0.5 * density * air.airspeed, air.alpha), one)
     law_state, cmd = flight_law.step(params.law, params.roll, params.law_trim, powers, state.law, pilot, meas,
                                      max_delta, params.authority, dt_s, one)
     cmd = once(cmd, one)
