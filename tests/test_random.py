@@ -10,8 +10,8 @@ import pytest
 import scipy.special
 import scipy.stats
 
-from mcfdd.analysis import noise, simulate
-from mcfdd.plant import closed_loop, rcam_loop
+from mcfdd.analysis import noise, probability, simulate
+from mcfdd.plant import closed_loop, manoeuvres, rcam_loop
 
 N_SCENARIOS, N_STEPS = 256, 200
 DIMS = {"inverse_cdf": closed_loop.NOISE_DIM, "box_muller": rcam_loop.NOISE_DIM}  # 4 and 7 (an odd count)
@@ -154,3 +154,20 @@ def test_box_muller_extremes_and_an_unknown_method():
     assert abs(largest - 5.77) < 0.01
     with pytest.raises(ValueError, match="unknown normal generator 'polar'"):
         noise.normals(noise.key_words(simulate.run_keys(0, [0])[0]), 0, 7, jnp.float32, "polar")
+
+
+def test_a_full_aircraft_run_is_the_run_of_the_normals_its_key_draws():
+    """The full aircraft's campaign runs draw Box-Muller normals: given them (probability.campaign_normals with
+    the plant's method), run_normals is the key's run to the bit, as issue 23's standard-normal space needs."""
+    model = closed_loop.build_model(aircraft_model="rcam")
+    plant = closed_loop.loop(model)
+    assert plant.normals == "box_muller" and closed_loop.loop(closed_loop.build_model()).normals == "inverse_cdf"
+    scenario = jax.tree.map(jnp.asarray, closed_loop.Scenario(turbulence_level=2.0))
+    key, n_steps, kinds = simulate.run_keys(7, [3])[0], 40, (manoeuvres.KIND_CODE["doublet"],)
+    ref = simulate.run(model, None, scenario, key, n_steps, 0.01, 2, kinds)[1]
+    init, steps = probability.campaign_normals(key, n_steps, probability.noise_dims(model), plant.normals)
+    got = simulate.run_normals(model, None, scenario, init, steps, 0.01, 2, kinds)[1]
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(ref)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    inverse = probability.campaign_normals(key, n_steps, probability.noise_dims(model))[1]
+    assert not np.any(np.asarray(inverse) == np.asarray(steps))  # the other method: other numbers
