@@ -243,8 +243,8 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     ax, ay, az = once((qs_m * (cl * sa - cd * ca), qs_m * cy, -qs_m * (cd * sa + cl * ca)), one)  # forces per mass
 
     def lateral(row: Lateral, control, thrust_term):  # k_l L + k_n N of a row (see Body)
-        return (qs_m * (control + beta * (row.beta + row.alpha_beta * alpha) + chord_v * (row.p * p_air + row.r * r_air))
-                + row.side * ay + thrust_term)
+        aero = control + beta * (row.beta + row.alpha_beta * alpha) + chord_v * (row.p * p_air + row.r * r_air)
+        return qs_m * aero + row.side * ay + thrust_term
 
     g = params.gravity_m_s2
     sphi, cphi = jnp.sin(state.phi), jnp.cos(state.phi)
