@@ -432,7 +432,8 @@ def peer_functions(p: Problem, n_steps: int):
         return simulate.start(model, fdd_params, scenario, key, dt_s, observer(settings, truth, fdd_params)[1])
 
     def step_one(model, fdd_params, settings, params, truth, carry, key, k):
-        normals = noise.normals(noise.key_words(key), k, closed_loop.loop(model).noise_dim, jnp.result_type(float))
+        plant = closed_loop.loop(model)
+        normals = noise.normals(noise.key_words(key), k, plant.noise_dim, jnp.result_type(float), plant.normals)
         return simulate.advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds,
                                 observer(settings, truth, fdd_params)[1])[0]
 
@@ -619,9 +620,9 @@ def measure_breakdown(n_scenarios: int, n_steps: int, repeats: int) -> dict:
 
         def body(state, k):
             (plant_state, fdd_state, seen), acc = state
-            dim = closed_loop.loop(model).noise_dim
-            draws = (jnp.full(dim, 0.5, params.qbar_pa.dtype) if stage == 4 else
-                     noise.normals(words, k, dim, params.qbar_pa.dtype))
+            plant = closed_loop.loop(model)
+            draws = (jnp.full(plant.noise_dim, 0.5, params.qbar_pa.dtype) if stage == 4 else
+                     noise.normals(words, k, plant.noise_dim, params.qbar_pa.dtype, plant.normals))
             if stage == 0:
                 return ((plant_state, fdd_state, seen), acc + draws.sum()), None
             if stage >= 3:

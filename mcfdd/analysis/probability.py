@@ -276,11 +276,12 @@ def columns_at(space: Space, points, args: StratumArgs) -> dict:
     return {name: np.asarray(values[name], float) for name in space.names}
 
 
-def campaign_normals(key, n_steps: int, dims: tuple[int, int]):
-    """The normals a campaign run keyed ``key`` draws (:mod:`mcfdd.analysis.noise`): (initial (d0,), steps (T, m))."""
+def campaign_normals(key, n_steps: int, dims: tuple[int, int], method: str = "inverse_cdf"):
+    """The normals a campaign run keyed ``key`` draws (:mod:`mcfdd.analysis.noise`, by the plant's ``method``,
+    ``closed_loop.loop(model).normals``): (initial (d0,), steps (T, m))."""
     words = noise.key_words(key)
     dtype = jnp.result_type(float)
-    steps = jax.vmap(lambda k: noise.normals(words, k, dims[1], dtype))(jnp.arange(n_steps))
+    steps = jax.vmap(lambda k: noise.normals(words, k, dims[1], dtype, method))(jnp.arange(n_steps))
     return jax.random.normal(key, (dims[0],)), steps
 
 

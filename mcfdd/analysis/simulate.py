@@ -44,18 +44,19 @@ def sample_time(k, dt_s: float):
     return k.astype(jnp.result_type(float)) * dt_s
 
 
-def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1):
+def scan_steps(body, carry, key, n_steps: int, dim: int, unroll: int = 1, method: str = "inverse_cdf"):
     """``lax.scan`` of ``body(carry, k, noise) -> (carry, y)`` over steps k = 0 .. n_steps - 1.
 
     The ``dim`` standard normals of step k are :func:`mcfdd.analysis.noise.normals` of the run
-    key's words and k: counter-based, drawn inside the step, independent of the horizon and of
-    the batch. Returns (final carry, stacked y with leading axis n_steps).
+    key's words and k (by ``method``, the plant's ``Loop.normals``): counter-based, drawn inside the
+    step, independent of the horizon and of the batch. Returns (final carry, stacked y with leading
+    axis n_steps).
     """
     words = noise.key_words(key)
     dtype = jnp.result_type(float)
 
     def one(c, k):
-        return body(c, k, noise.normals(words, k, dim, dtype))
+        return body(c, k, noise.normals(words, k, dim, dtype, method))
 
     return jax.lax.scan(one, carry, jnp.arange(n_steps), unroll=unroll)
 
@@ -125,7 +126,8 @@ def run(model: closed_loop.PlantModel, fdd_params: system.FddParams | None, scen
     def body(carry, k, normals):
         return advance(model, params, fdd_params, carry, k, normals, dt_s, substeps, kinds, observer)
 
-    (_, _, seen), ys = scan_steps(body, carry, key, n_steps, closed_loop.loop(model).noise_dim)
+    plant = closed_loop.loop(model)
+    (_, _, seen), ys = scan_steps(body, carry, key, n_steps, plant.noise_dim, method=plant.normals)
     return seen, ys
 
 

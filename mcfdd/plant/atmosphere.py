@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from mcfdd.arrays import array_module
+from mcfdd.compute import once
 
 P0_PA = 101325.0
 T0_K = 288.15
@@ -32,16 +33,19 @@ KT_TO_M_S = 1852.0 / 3600.0
 FT_TO_M = 0.3048
 
 
-def isa(altitude_m):
+def isa(altitude_m, one=None):
     """International Standard Atmosphere up to 20 km.
 
     Returns (temperature K, pressure Pa, density kg/m^3, speed of sound m/s), each shaped like
-    ``altitude_m``.
+    ``altitude_m``. With ``one`` (every sample, :func:`mcfdd.compute.once`) the temperature, which
+    the other three read, is computed once.
     """
     xp = array_module(altitude_m)
     h = xp.asarray(altitude_m)
     t_trop = T0_K - LAPSE_K_M * TROPOPAUSE_M
     temperature = xp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
+    if one is not None:
+        temperature = once(temperature, one)
     exponent = G0_M_S2 / (R_J_KG_K * LAPSE_K_M)
     p_trop = P0_PA * (t_trop / T0_K) ** exponent
     pressure = xp.where(

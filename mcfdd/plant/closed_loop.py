@@ -195,18 +195,21 @@ class Loop(NamedTuple):
     """The pure functions of one plant: ``prepare(model, scenario, dt_s) -> params``,
     ``init(params, normals) -> state`` (``init_noise_dim`` normals) and ``step(params, state, t_s,
     normals, dt_s, substeps, kinds) -> (state, outputs)`` (``noise_dim`` normals per step: (3, 4) on
-    the roll axis, (6, 7) on the full aircraft with its six gust components)."""
+    the roll axis, (6, 7) on the full aircraft with its six gust components). ``normals`` names the
+    transform that draws a campaign run's per-step normals (:func:`mcfdd.analysis.noise.normals`): the
+    inverse-CDF on the roll axis, Box-Muller pairs on the full aircraft."""
 
     prepare: Callable
     init: Callable
     step: Callable
     init_noise_dim: int
     noise_dim: int
+    normals: str = "inverse_cdf"
 
 
 LOOPS = {PlantModel: Loop(prepare, init, step, INIT_NOISE_DIM, NOISE_DIM),
          rcam_loop.RcamModel: Loop(rcam_loop.prepare, rcam_loop.init, rcam_loop.step, rcam_loop.INIT_NOISE_DIM,
-                                   rcam_loop.NOISE_DIM)}
+                                   rcam_loop.NOISE_DIM, rcam_loop.NORMALS)}
 
 
 def loop(model) -> Loop:

@@ -112,8 +112,12 @@ def point_line(table: HingeTable, vcas_m_s, altitude_m, delta_rad, one=1.0):
     nodes = [jnp.minimum(jnp.floor(pos), g.shape[0] - 2.0) for pos, g in zip(positions, grids)]
     wv, wh, wd = once(tuple(pos - node for pos, node in zip(positions, nodes)), one)
     block = jax.lax.dynamic_slice(table.load_n, tuple(node.astype(jnp.int32) for node in nodes), (2, 2, 2))
-    by_h = block[:, 0] * (1.0 - wh) + block[:, 1] * wh
-    lo, hi = once(tuple(by_h[0] * (1.0 - wv) + by_h[1] * wv), one)  # read by the load and the slope
+
+    def node(k):  # the slice at the cell's delta node k (each node's four entries only)
+        by_h = block[:, 0, k] * (1.0 - wh) + block[:, 1, k] * wh
+        return by_h[0] * (1.0 - wv) + by_h[1] * wv
+
+    lo, hi = once((node(0), node(1)), one)  # read by the load and the slope
     return lo + (hi - lo) * wd, (hi - lo) / (table.delta_rad[1] - table.delta_rad[0])
 
 

@@ -126,6 +126,21 @@ def lift_wing_body(params: RcamParams, alpha):
     return jnp.where(alpha <= params.alpha_switch_rad, linear, cubic)
 
 
+_CN_BETA_ALPHA = 180.0 / (15.0 * math.pi)  # Cn's beta term (1 - alpha 180 / (15 pi)) beta
+
+
+class Lateral(NamedTuple):
+    """One row of the lateral moments' rates folded into per-run coefficients (see :class:`Body`)."""
+
+    beta: jnp.ndarray
+    alpha_beta: jnp.ndarray
+    p: jnp.ndarray
+    r: jnp.ndarray
+    side: jnp.ndarray
+    aileron: jnp.ndarray
+    rudder: jnp.ndarray
+
+
 class Body(NamedTuple):
     """Per-run constants of the equations of motion (from :class:`RcamParams`; mass and inertia may be sampled).
 
@@ -133,11 +148,20 @@ class Body(NamedTuple):
     the moments per unit mass (L, M, N) solve to
     ``p_dot = l_l L + l_n N + (p_p p + p_r r) q``, ``q_dot = m_m M + q_pr p r + q_pp (p^2 - r^2)``,
     ``r_dot = n_l L + n_n N + (r_p p + r_r r) q`` (``n_l = l_n``).
+
+    The moments' aerodynamic and force terms enter these rates through per-run coefficients (the
+    same sums in another order): with ``qS/m`` the dynamic pressure times S per unit mass, ``cbar/V``
+    the chord over the airspeed, (p, q, r) the air-relative rates and (a_x, a_y, a_z) the
+    aerodynamic forces per unit mass, each lateral row (k_l, k_n) = (l_l, l_n) for p_dot and (l_n,
+    n_n) for r_dot gives ``k_l L + k_n N = qS/m (c0 + beta (c_beta + c_alpha_beta alpha) + cbar/V
+    (c_p p + c_r r)) + c_y a_y + k_n N_thrust``, where c0 = ``c_aileron delta_a + c_rudder delta_r``
+    holds Cl's and Cn's control terms and each c is cbar (k_l Cl_x + k_n Cn_x) of the term x;
+    ``m_m M = qS/m (m_0 + m_incidence (alpha - eps + delta_t) + m_q cbar/V q) + m_x a_x + m_z a_z
+    + m_m M_thrust``.
     """
 
     inv_mass: jnp.ndarray  # 1/kg
     thrust_per_mass: jnp.ndarray  # m/s^2 per rad of throttle: m_ref g / m
-    l_l: jnp.ndarray
     l_n: jnp.ndarray
     p_p: jnp.ndarray
     p_r: jnp.ndarray
@@ -147,16 +171,37 @@ class Body(NamedTuple):
     n_n: jnp.ndarray
     r_p: jnp.ndarray
     r_r: jnp.ndarray
+    roll: Lateral  # p_dot's row (l_l, l_n)
+    yaw: Lateral  # r_dot's row (l_n, n_n)
+    m_0: jnp.ndarray
+    m_incidence: jnp.ndarray
+    m_q: jnp.ndarray
+    m_x: jnp.ndarray
+    m_z: jnp.ndarray
 
 
 def body_constants(params: RcamParams) -> Body:
     """The :class:`Body` constants of the parameters (once per run)."""
     a, b, c, e = params.ixx_m2, params.iyy_m2, params.izz_m2, params.ixz_m2
     det = a * c - e * e
+    l_l, l_n, n_n, m_m = c / det, -e / det, a / det, 1.0 / b
+    chord, lt = params.mean_chord_m, params.tail_arm_m
+    tail = params.tail_area_m2 / params.wing_area_m2
+    dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
+
+    def lateral(k_l, k_n):  # Cl = -1.4 beta + cbar/V (-11 p + 5 r) - 0.6 delta_a + 0.22 delta_r
+        return Lateral(chord * (-1.4 * k_l + k_n), -chord * k_n * _CN_BETA_ALPHA,  # Cn: (1 - alpha 12/pi) beta
+                       chord * (-11.0 * k_l + 1.7 * k_n), chord * (5.0 * k_l - 11.5 * k_n),  # + cbar/V (1.7 p - 11.5 r)
+                       k_l * dz - k_n * dx, chord * (-0.6 * k_l), chord * (0.22 * k_l - 0.63 * k_n))  # - 0.63 delta_r
+
     return Body(1.0 / params.mass_kg, params.thrust_mass_kg * params.gravity_m_s2 / params.mass_kg,
-                c / det, -e / det, e * (b - a - c) / det, -(c * (c - b) + e * e) / det,
-                1.0 / b, (c - a) / b, e / b,
-                a / det, (e * e - a * (b - a)) / det, e * (a + c - b) / det)
+                l_n, e * (b - a - c) / det, -(c * (c - b) + e * e) / det,
+                m_m, (c - a) / b, e / b,
+                n_n, (e * e - a * (b - a)) / det, e * (a + c - b) / det,
+                lateral(l_l, l_n), lateral(l_n, n_n),
+                # Cm = -0.59 - 3.1 (S_t l_t / (S cbar)) (alpha - eps + delta_t) - 4.03 (S_t l_t^2 / (S cbar^2)) cbar/V q
+                -0.59 * chord * m_m, -3.1 * tail * lt * m_m, -4.03 * tail * lt * lt / chord * m_m,
+                -dz * m_m, dx * m_m)
 
 
 def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3,
@@ -170,14 +215,17 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     body = body_constants(params) if body is None else body
     s, c, lt = params.wing_area_m2, params.mean_chord_m, params.tail_arm_m
     tail = params.tail_area_m2 / s
-    dx, dz = params.x_cg_m - params.x_ac_m, params.z_cg_m
+    roll, yaw = body.roll, body.yaw
     # terms of the controls and the density alone: the same in every Runge-Kutta stage, computed once per step
     t1, t2 = controls.throttle1 * body.thrust_per_mass, controls.throttle2 * body.thrust_per_mass
-    pressure_m, incidence_0, side_0, roll_0, yaw_0, thrust, thrust_m, thrust_n = once((
+    thrust_n = params.engine_y_m * (t1 - t2)
+    pressure_m, incidence_0, side_0, roll_0, yaw_0, thrust, roll_t, pitch_t, yaw_t = once((
         (0.5 * s) * density_kg_m3 * body.inv_mass,  # dynamic pressure times S per unit mass, over V^2
         controls.stabiliser + params.downwash_slope * params.alpha_l0_rad, 0.24 * controls.rudder,
-        0.22 * controls.rudder - 0.6 * controls.aileron, -0.63 * controls.rudder,
-        t1 + t2, (params.z_cg_m - params.engine_z_m) * (t1 + t2), params.engine_y_m * (t1 - t2)), one)
+        roll.aileron * controls.aileron + roll.rudder * controls.rudder,
+        yaw.aileron * controls.aileron + yaw.rudder * controls.rudder,
+        t1 + t2, body.l_n * thrust_n, body.m_m * (params.z_cg_m - params.engine_z_m) * (t1 + t2),
+        body.n_n * thrust_n), one)
 
     air = air_data(state, gust)
     alpha, beta, speed = air.alpha, air.beta, air.airspeed
@@ -188,19 +236,15 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     p_air, q_air, r_air = once((state.p - gust.p, state.q - gust.q, state.r - gust.r), one)
 
     tail_incidence = incidence_0 + (1.0 - params.downwash_slope) * alpha  # alpha - eps + delta_t
-    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + 1.3 * q_air * lt / speed)
+    cl = lift_wing_body(params, alpha) + 3.1 * tail * (tail_incidence + (1.3 * lt / c) * chord_v * q_air)
     cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
     cl, cd, tail_incidence = once((cl, cd, tail_incidence), one)
     cy = -1.6 * beta + side_0
     ax, ay, az = once((qs_m * (cl * sa - cd * ca), qs_m * cy, -qs_m * (cd * sa + cl * ca)), one)  # forces per mass
 
-    tail_volume = 3.1 * tail * lt / c
-    roll = roll_0 - 1.4 * beta + chord_v * (-11.0 * p_air + 5.0 * r_air)
-    pitch = (-0.59 - tail_volume * tail_incidence
-             - 4.03 * tail * (lt / c) ** 2 * chord_v * q_air)
-    yaw = yaw_0 + (1.0 - alpha * (180.0 / (15.0 * math.pi))) * beta + chord_v * (1.7 * p_air - 11.5 * r_air)
-    moment_l, moment_n = once((qs_m * c * roll + ay * dz, qs_m * c * yaw - ay * dx + thrust_n), one)  # per mass
-    moment_m = qs_m * c * pitch + az * dx - ax * dz + thrust_m  # read by q_dot alone
+    def lateral(row: Lateral, control, thrust_term):  # k_l L + k_n N of a row (see Body)
+        aero = control + beta * (row.beta + row.alpha_beta * alpha) + chord_v * (row.p * p_air + row.r * r_air)
+        return qs_m * aero + row.side * ay + thrust_term
 
     g = params.gravity_m_s2
     sphi, cphi = jnp.sin(state.phi), jnp.cos(state.phi)
@@ -211,9 +255,11 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     udot = thrust + ax - g * sth - (q * w - r * v)
     vdot = ay + g * cth * sphi - (r * u - p * w)
     wdot = az + g * cth * cphi - (p * v - q * u)
-    pdot = body.l_l * moment_l + body.l_n * moment_n + (body.p_p * p + body.p_r * r) * q
-    qdot = body.m_m * moment_m + body.q_pr * p * r + body.q_pp * (p * p - r * r)
-    rdot = body.l_n * moment_l + body.n_n * moment_n + (body.r_p * p + body.r_r * r) * q
+    pdot = lateral(roll, roll_0, roll_t) + (body.p_p * p + body.p_r * r) * q
+    pitch = (qs_m * (body.m_0 + body.m_incidence * tail_incidence + body.m_q * chord_v * q_air)
+             + body.m_x * ax + body.m_z * az + pitch_t)  # m_m M
+    qdot = pitch + body.q_pr * p * r + body.q_pp * (p * p - r * r)
+    rdot = lateral(yaw, yaw_0, yaw_t) + (body.r_p * p + body.r_r * r) * q
 
     turn = once(q * sphi + r * cphi, one)
     down = -u * sth + (v * sphi + w * cphi) * cth

@@ -55,6 +55,7 @@ from mcfdd.plant.uncertainty import scaled
 
 INIT_NOISE_DIM = turbulence.GUST_NORMALS  # normals at the start: the forming filters' states
 NOISE_DIM = turbulence.GUST_NORMALS + 1  # normals per step: six for the gusts, one for the position sensor
+NORMALS = "box_muller"  # how a campaign run draws them (:func:`mcfdd.analysis.noise.normals`)
 
 
 class Surface(NamedTuple):
@@ -119,6 +120,7 @@ class RcamRunParams(NamedTuple):
     surfaces: SurfaceSteps
     trim: rcam.Trim
     law_trim: flight_law.Trim
+    unit_powers: flight_law.ControlPowers  # at qbar = 1 Pa, V = 1 m/s, alpha = 0 (:func:`unit_powers`)
     gust: turbulence.GustParams
     manoeuvre: manoeuvres.ManoeuvreParams
     qbar_pa: jnp.ndarray
@@ -182,6 +184,7 @@ def prepare(model: RcamModel, scenario, dt_s: float) -> RcamRunParams:
         surfaces=SurfaceSteps(*(surface_step(x, dt_s) for x in (twin_aileron(nominal), s.stabiliser, s.rudder,
                                                                  s.throttle))),
         trim=trim, law_trim=flight_law.Trim(trim.stabiliser, trim.throttle, jnp.asarray(scenario.vcas_m_s)),
+        unit_powers=unit_powers(model.aircraft, body),
         gust=turbulence.gust_params(scenario.turbulence_level, model.aircraft.span_m),
         manoeuvre=scenario.manoeuvre, qbar_pa=qbar, noise_std_m=jnp.asarray(scenario.noise_std_m),
         one=jnp.asarray(model.one))
@@ -194,15 +197,22 @@ def init(params: RcamRunParams, noise) -> RcamPlantState:
                           zero, params.trim.throttle + zero, flight_law.init(zero), turbulence.gust_init(noise))
 
 
-def _powers(params: RcamRunParams, qbar, tas, alpha) -> flight_law.ControlPowers:
-    """Nominal control powers of the healthy aircraft at the measured flight point (TP-088-3's C_n_beta(alpha))."""
-    b = params.rcam
-    roll_damping, aileron_power = aircraft.roll_derivatives(params.aircraft, qbar, tas, b.mass_kg * b.ixx_m2)
-    pitch = -qbar * 3.1 * b.tail_area_m2 * b.tail_arm_m / (b.mass_kg * b.iyy_m2)
-    yaw_scale = qbar * b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
+def unit_powers(aircraft_params: aircraft.AircraftParams, b: rcam.RcamParams) -> flight_law.ControlPowers:
+    """Per-run control powers of the healthy aircraft at qbar = 1 Pa, V = 1 m/s and alpha = 0 (:func:`_powers`)."""
+    roll_damping, aileron_power = aircraft.roll_derivatives(aircraft_params, 1.0, 1.0, b.mass_kg * b.ixx_m2)
+    pitch = -3.1 * b.tail_area_m2 * b.tail_arm_m / (b.mass_kg * b.iyy_m2)
+    yaw_scale = b.wing_area_m2 * b.mean_chord_m / (b.mass_kg * b.izz_m2)
     throttle = 2.0 * b.thrust_mass_kg * b.gravity_m_s2 / b.mass_kg
-    stiffness = yaw_scale * (1.0 - alpha * (180.0 / (15.0 * math.pi)))
-    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, stiffness)
+    return flight_law.ControlPowers(roll_damping, aileron_power, pitch, -0.63 * yaw_scale, throttle, yaw_scale)
+
+
+def _powers(unit: flight_law.ControlPowers, qbar, qbar_per_tas, alpha) -> flight_law.ControlPowers:
+    """Nominal control powers of the healthy aircraft at the measured flight point from the run's
+    :func:`unit_powers`: L_p in qbar / V (``qbar_per_tas`` = rho V / 2, Pa s/m), the control powers and N_beta in
+    qbar (TP-088-3's C_n_beta(alpha))."""
+    return flight_law.ControlPowers(unit.roll_damping * qbar_per_tas, unit.aileron * qbar, unit.stabiliser * qbar,
+                                    unit.rudder * qbar, unit.throttle,
+                                    unit.sideslip * qbar * (1.0 - alpha * (180.0 / (15.0 * math.pi))))
 
 
 def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, substeps: int,
@@ -220,26 +230,27 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
                                            dt_s, one)
     gust = once(gust, one)
     air = rcam.air_data(b, gust)
-    _, pressure, density, sound = once(atmosphere.isa(b.altitude), one)
+    _, pressure, density, sound = atmosphere.isa(b.altitude, one)
+    pressure, density = once((pressure, density), one)  # the speed of sound is read once, as a divisor
     vcas = atmosphere.calibrated_airspeed_at_pressure(air.airspeed / sound, pressure)
     qbar = 0.5 * density * air.airspeed**2
     sphi, cphi, sth, cth = once((jnp.sin(b.phi), jnp.cos(b.phi), jnp.sin(b.theta), jnp.cos(b.theta)), one)
     climb = b.u * sth - (b.v * sphi + b.w * cphi) * cth
     gamma = jnp.arcsin(jnp.clip(climb / speed, -1.0, 1.0))
-    air, vcas, qbar, density, gamma = once((air, vcas, qbar, density, gamma), one)
+    air, vcas, qbar, gamma = once((air, vcas, qbar, gamma), one)
 
     # the surfaces where the sample starts (the monitored aileron at its rod, its power scaled by nu2)
     delta = state.actuator.x_m / act.r_arm_m
     nu = actuator.active_nu(params.fault, t_s)[1]
     aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, nu)
-    controls = once(rcam.RcamControls(aileron, state.stabiliser, state.rudder, state.throttle, state.throttle), one)
+    controls = rcam.RcamControls(once(aileron, one), state.stabiliser, state.rudder, state.throttle, state.throttle)
     rates = once(rcam.derivatives(params.rcam, b, controls, density, gust, one, params.body), one)
     g = params.rcam.gravity_m_s2
     nz = once(-(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g, one)
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
-    powers = once(_powers(params, qbar, air.airspeed, air.alpha), one)
+    powers = once(_powers(params.unit_powers, qbar, 0.5 * density * air.airspeed, air.alpha), one)
     law_state, cmd = flight_law.step(params.law, params.roll, params.law_trim, powers, state.law, pilot, meas,
                                      max_delta, params.authority, dt_s, one)
     cmd = once(cmd, one)

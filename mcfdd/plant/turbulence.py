@@ -173,19 +173,22 @@ def step(params: TurbulenceParams, state, noise3):
 
 GUST_NORMALS = 6  # normals per step (and at the start): u, v (2), w (2), p
 _HIGH_KNOTS_FT = _TABLE_ALT_FT[1:]  # the high-altitude model starts at 2000 ft: the 500 ft knot is never used
+_HIGH_START_FT, _HIGH_STEP_FT = 2000.0, 250.0  # every knot above 2000 ft is 2000 ft plus a multiple of 250 ft
+_HIGH_CELLS = round((_HIGH_KNOTS_FT[-1] - _HIGH_START_FT) / _HIGH_STEP_FT)
 _S_TERMS = 9  # terms of the series S(X) below: relative error below 2e-7 for X <= 1.4
 
 
 class GustParams(NamedTuple):
     """Per-run constants of the six-component Dryden turbulence (level and span; SI units).
 
-    ``high`` holds the medium/high-altitude intensity of the run's level as a piecewise-linear
-    function of altitude in ramp form: sigma(h) = high[0] + high[1] (h - k_0) + sum_j high[j+1]
-    max(h - k_j, 0) over the knots k_j of MIL-F-8785C Fig. 7 (h in ft, sigma in m/s).
+    ``high`` holds the medium/high-altitude intensity of the run's level (m/s), the piecewise-linear
+    function of altitude of MIL-F-8785C Fig. 7, at 2000 ft and every 250 ft above up to the last
+    knot (80,000 ft): every knot of the figure above 2000 ft is on this grid, so linear interpolation
+    between neighbouring entries is the figure's function (a cell index and one weight a sample).
     """
 
     sigma_w_low: jnp.ndarray  # 0.1 W20 (m/s)
-    high: jnp.ndarray  # (len(_HIGH_KNOTS_FT) + 1,)
+    high: jnp.ndarray  # (_HIGH_CELLS + 1,)
     span_rate: jnp.ndarray  # pi / (4 b) (1/m): 1 / (V tau_p), tau_p = tau_q = 4 b / (pi V)
     p_scale: jnp.ndarray  # sigma_p L_w^(1/3) / sigma_w = pi sqrt(0.1 / b) (pi / (4 b))^(1/6) (m^(-1/6))
 
@@ -219,8 +222,8 @@ def gust_params(level, span_m) -> GustParams:
     """Per-run constants of :func:`gust_step` for a turbulence level (0 none .. 3 severe) and wing span (m)."""
     rows = [jnp.asarray(row[1:]) * FT_TO_M for row in (_SIGMA_LIGHT_FT_S, _SIGMA_MODERATE_FT_S, _SIGMA_SEVERE_FT_S)]
     values = _level_interp(level, (jnp.zeros_like(rows[0]), *rows))
-    slopes = jnp.diff(values) / jnp.diff(jnp.asarray(_HIGH_KNOTS_FT))
-    high = jnp.concatenate([values[:1], slopes[:1], jnp.diff(slopes)])
+    grid = _HIGH_START_FT + _HIGH_STEP_FT * jnp.arange(_HIGH_CELLS + 1, dtype=values.dtype)
+    high = jnp.interp(grid, jnp.asarray(_HIGH_KNOTS_FT, values.dtype), values)
     span = jnp.asarray(span_m)
     return GustParams(0.1 * _level_interp(level, _W20_KT) * KT_TO_M_S, high, math.pi / (4.0 * span),
                       math.pi * jnp.sqrt(0.1 / span) * (math.pi / (4.0 * span)) ** (1.0 / 6.0))
@@ -229,10 +232,10 @@ def gust_params(level, span_m) -> GustParams:
 def gust_scales(params: GustParams, altitude_m, one=1.0):
     """(sigma_u = sigma_v m/s, L_u = L_v m, sigma_w m/s, L_w m) at an altitude (m), as :func:`intensity`."""
     h_ft = jnp.maximum(altitude_m / FT_TO_M, 10.0)
-    h_hi = jnp.clip(h_ft, 2000.0, _HIGH_KNOTS_FT[-1])
-    sigma_hi = params.high[0] + params.high[1] * (h_hi - _HIGH_KNOTS_FT[0])
-    for j, knot in enumerate(_HIGH_KNOTS_FT[1:-1]):
-        sigma_hi = sigma_hi + params.high[j + 2] * jnp.maximum(h_hi - knot, 0.0)
+    x = (jnp.clip(h_ft, _HIGH_START_FT, _HIGH_KNOTS_FT[-1]) - _HIGH_START_FT) * (1.0 / _HIGH_STEP_FT)
+    cell = jnp.minimum(jnp.floor(x), _HIGH_CELLS - 1)
+    i = cell.astype(jnp.int32)
+    sigma_hi = params.high[i] + (params.high[i + 1] - params.high[i]) * (x - cell)
     return _scales(h_ft, params.sigma_w_low, once(sigma_hi, one), one)
 
 
@@ -245,15 +248,17 @@ def _second_order(z1, z2, r, decay, n1, n2, one):
     with X = 2 r and P the regularised incomplete gamma function, P(3, X) = e^-X X^3 S(X) / 6,
     S(X) = sum_k 6 X^k / (k + 3)!. Each factor is computed without cancellation (Q22 as
     -expm1(-X) + e^-X X (1 - X/2)), so the Cholesky factor holds in float32 down to r of 1e-4.
+    With y = sqrt(X S(X) / 6) the factors are L11 = e^-X/2 X y and L21 = Q12 / L11 = e^-X/2 X / (2 y).
     """
     x = 2.0 * r
-    series = 6.0 / math.factorial(_S_TERMS + 2)
+    series = 1.0 / math.factorial(_S_TERMS + 2)  # S(X) / 6
     for k in range(_S_TERMS - 2, -1, -1):
-        series = series * x + 6.0 / math.factorial(k + 3)
-    root_x, root_s = jnp.sqrt(x), jnp.sqrt(series / 6.0)
-    l11 = decay * x * root_x * root_s
-    l21 = decay * root_x / (2.0 * root_s)
-    q22 = -jnp.expm1(-x) + decay * decay * x * (1.0 - 0.5 * x)
+        series = series * x + 1.0 / math.factorial(k + 3)
+    root = jnp.sqrt(x * series)
+    decay_x = decay * x
+    l11 = decay_x * root
+    l21 = decay_x / (2.0 * root)
+    q22 = -jnp.expm1(-x) + decay * decay_x * (1.0 - 0.5 * x)
     l22 = jnp.sqrt(jnp.maximum(q22 - l21 * l21, 0.0))
     l11, l21, l22, a = once((l11, l21, l22, decay * r * (z1 + z2)), one)
     return decay * z1 + a + l11 * n1, decay * z2 - a + l21 * n1 + l22 * n2
@@ -294,8 +299,8 @@ def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6,
     step_length = dt_s * tas_m_s
     r_uv, r_w, r_p = step_length / length_uv, step_length / length_w, step_length * params.span_rate
     r_r = r_p * (4.0 / 3.0)  # tau_r = 3 b / (pi V)
-    r_uv, r_w, r_p, r_r, e_uv, e_w, e_p, e_r = once(
-        (r_uv, r_w, r_p, r_r, jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
+    r_uv, r_w, r_p, r_r = once((r_uv, r_w, r_p, r_r), one)  # stored before their exponentials read them
+    e_uv, e_w, e_p, e_r = once((jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
     zeta_v, zeta_w = once((_normalised(state.v1, state.v2), _normalised(state.w1, state.w2)), one)
     gust = Gust(sigma_uv * state.u, sigma_uv * zeta_v, sigma_w * zeta_w,
                 sigma_w * params.p_scale * length_w ** (-1.0 / 3.0) * state.p,
