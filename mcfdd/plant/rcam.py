@@ -156,7 +156,7 @@ class Body(NamedTuple):
     n_n) for r_dot gives ``k_l L + k_n N = qS/m (c0 + beta (c_beta + c_alpha_beta alpha) + cbar/V
     (c_p p + c_r r)) + c_y a_y + k_n N_thrust``, where c0 = ``c_aileron delta_a + c_rudder delta_r``
     holds Cl's and Cn's control terms and each c is cbar (k_l Cl_x + k_n Cn_x) of the term x;
-    ``m_m M = qS/m (m_0 + m_incidence (alpha - eps + delta_t) + m_q cbar/V q) + m_x a_x + m_z a_z
+    ``m_m M = qS/m (m_0 + m_incidence (alpha - eps + delta_t) + m_q cbar/V q) + m_x a_x + m_down (-a_z)
     + m_m M_thrust``.
     """
 
@@ -177,7 +177,7 @@ class Body(NamedTuple):
     m_incidence: jnp.ndarray
     m_q: jnp.ndarray
     m_x: jnp.ndarray
-    m_z: jnp.ndarray
+    m_down: jnp.ndarray  # -m_z: a_z enters as the down force -a_z per unit mass
 
 
 def body_constants(params: RcamParams) -> Body:
@@ -201,7 +201,7 @@ def body_constants(params: RcamParams) -> Body:
                 lateral(l_l, l_n), lateral(l_n, n_n),
                 # Cm = -0.59 - 3.1 (S_t l_t / (S cbar)) (alpha - eps + delta_t) - 4.03 (S_t l_t^2 / (S cbar^2)) cbar/V q
                 -0.59 * chord * m_m, -3.1 * tail * lt * m_m, -4.03 * tail * lt * lt / chord * m_m,
-                -dz * m_m, dx * m_m)
+                -dz * m_m, -dx * m_m)
 
 
 def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3,
@@ -240,7 +240,8 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     cd = 0.13 + 0.07 * (5.5 * alpha + 0.654) ** 2
     cl, cd, tail_incidence = once((cl, cd, tail_incidence), one)
     cy = -1.6 * beta + side_0
-    ax, ay, az = once((qs_m * (cl * sa - cd * ca), qs_m * cy, -qs_m * (cd * sa + cl * ca)), one)  # forces per mass
+    # the aerodynamic forces per unit mass: a_x, a_y and the down force -a_z
+    ax, ay, down_force = once((qs_m * (cl * sa - cd * ca), qs_m * cy, qs_m * (cd * sa + cl * ca)), one)
 
     def lateral(row: Lateral, control, thrust_term):  # k_l L + k_n N of a row (see Body)
         aero = control + beta * (row.beta + row.alpha_beta * alpha) + chord_v * (row.p * p_air + row.r * r_air)
@@ -254,21 +255,21 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     u, v, w, p, q, r = state.u, state.v, state.w, state.p, state.q, state.r
     udot = thrust + ax - g * sth - (q * w - r * v)
     vdot = ay + g * cth * sphi - (r * u - p * w)
-    wdot = az + g * cth * cphi - (p * v - q * u)
+    wdot = g * cth * cphi - down_force - (p * v - q * u)
     pdot = lateral(roll, roll_0, roll_t) + (body.p_p * p + body.p_r * r) * q
     pitch = (qs_m * (body.m_0 + body.m_incidence * tail_incidence + body.m_q * chord_v * q_air)
-             + body.m_x * ax + body.m_z * az + pitch_t)  # m_m M
+             + body.m_x * ax + body.m_down * down_force + pitch_t)  # m_m M
     qdot = pitch + body.q_pr * p * r + body.q_pp * (p * p - r * r)
     rdot = lateral(yaw, yaw_0, yaw_t) + (body.r_p * p + body.r_r * r) * q
 
     turn = once(q * sphi + r * cphi, one)
-    down = -u * sth + (v * sphi + w * cphi) * cth
+    climb = u * sth - (v * sphi + w * cphi) * cth
     side = v * cphi - w * sphi
     along = u * cth + (v * sphi + w * cphi) * sth
     return RcamState(
         udot, vdot, wdot, pdot, qdot, rdot,
         p + jnp.tan(state.theta) * turn, q * cphi - r * sphi, turn / cth,
-        along * cpsi - side * spsi, along * spsi + side * cpsi, -down)
+        along * cpsi - side * spsi, along * spsi + side * cpsi, climb)
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,
