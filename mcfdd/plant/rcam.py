@@ -212,6 +212,12 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     the attitude's sines and cosines each feed several of the twelve rates); ``body`` the run's
     :func:`body_constants` (computed here when not given).
     """
+    return derivatives_and_load(params, state, controls, density_kg_m3, gust, one, body)[0]
+
+
+def derivatives_and_load(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3,
+                         gust: Gust = CALM, one=1.0, body: Body | None = None) -> tuple[RcamState, jnp.ndarray]:
+    """:func:`derivatives` and the body normal load factor n_z = -a_z / g (g) of the aerodynamic force."""
     body = body_constants(params) if body is None else body
     s, c, lt = params.wing_area_m2, params.mean_chord_m, params.tail_arm_m
     tail = params.tail_area_m2 / s
@@ -269,7 +275,7 @@ def derivatives(params: RcamParams, state: RcamState, controls: RcamControls, de
     return RcamState(
         udot, vdot, wdot, pdot, qdot, rdot,
         p + jnp.tan(state.theta) * turn, q * cphi - r * sphi, turn / cth,
-        along * cpsi - side * spsi, along * spsi + side * cpsi, climb)
+        along * cpsi - side * spsi, along * spsi + side * cpsi, climb), down_force * (1.0 / g)
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,

@@ -244,9 +244,7 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     nu = actuator.active_nu(params.fault, t_s)[1]
     aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, nu)
     controls = rcam.RcamControls(once(aileron, one), state.stabiliser, state.rudder, state.throttle, state.throttle)
-    rates = once(rcam.derivatives(params.rcam, b, controls, density, gust, one, params.body), one)
-    g = params.rcam.gravity_m_s2
-    nz = once(-(rates.w - g * cth * cphi + b.p * b.v - b.q * b.u) / g, one)
+    rates, nz = once(rcam.derivatives_and_load(params.rcam, b, controls, density, gust, one, params.body), one)
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
