@@ -274,8 +274,14 @@ def derivatives_and_load(params: RcamParams, state: RcamState, controls: RcamCon
     along = u * cth + (v * sphi + w * cphi) * sth
     return RcamState(
         udot, vdot, wdot, pdot, qdot, rdot,
-        p + jnp.tan(state.theta) * turn, q * cphi - r * sphi, turn / cth,
+        p + jnp.tan(state.theta) * turn, q * cphi - r * sphi, turn / jnp.cos(state.theta),
         along * cpsi - side * spsi, along * spsi + side * cpsi, climb), down_force * (1.0 / g)
+
+
+def store_rates(rates: RcamState, one) -> RcamState:
+    """``rates`` computed once (:func:`mcfdd.compute.once`) but psi's: only the Runge-Kutta sum reads it, and
+    psi_dot, a quotient, stored as (a / b) / 1 would be re-associated as a / (b 1) and recomputed there anyway."""
+    return once(rates._replace(psi=None), one)._replace(psi=rates.psi)
 
 
 def step(params: RcamParams, state: RcamState, controls: RcamControls, density_kg_m3, dt_s: float,
@@ -295,9 +301,9 @@ def step(params: RcamParams, state: RcamState, controls: RcamControls, density_k
     def add(x, k, h):
         return once(jax.tree.map(lambda a, b: a + h * b, x, k), one)
 
-    k1 = once(f(state), one) if k1 is None else k1
-    k2 = once(f(add(state, k1, 0.5 * dt_s)), one)
-    k3 = once(f(add(state, k2, 0.5 * dt_s)), one)
+    k1 = store_rates(f(state), one) if k1 is None else k1
+    k2 = store_rates(f(add(state, k1, 0.5 * dt_s)), one)
+    k3 = store_rates(f(add(state, k2, 0.5 * dt_s)), one)
     k4 = f(add(state, k3, dt_s))  # read by the final sum alone
     new = jax.tree.map(lambda x, a, b, c, d: x + dt_s / 6.0 * (a + 2.0 * (b + c) + d), state, k1, k2, k3, k4)
     return new, k1

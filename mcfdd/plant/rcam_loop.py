@@ -244,7 +244,8 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
     nu = actuator.active_nu(params.fault, t_s)[1]
     aileron = aircraft.effective_aileron(params.aircraft, delta, state.aileron, nu)
     controls = rcam.RcamControls(once(aileron, one), state.stabiliser, state.rudder, state.throttle, state.throttle)
-    rates, nz = once(rcam.derivatives_and_load(params.rcam, b, controls, density, gust, one, params.body), one)
+    rates, nz = rcam.derivatives_and_load(params.rcam, b, controls, density, gust, one, params.body)
+    rates, nz = rcam.store_rates(rates, one), once(nz, one)
     meas = flight_law.Measurements(b, air.beta, gamma, air.airspeed, vcas, nz)
 
     max_delta = act.max_deflection_rad
