@@ -47,6 +47,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
+from jax import lax
 
 from mcfdd.compute import ONE, once
 from mcfdd.plant import actuator, aircraft, atmosphere, control_law, flight_law, hinge, manoeuvres, rcam, turbulence
@@ -163,8 +164,8 @@ def surface_step(surface: Surface, dt_s: float) -> SurfaceStep:
 def follow(s: SurfaceStep, position, command):
     """One sample of a surface: the exact lag step towards the command held within the position limits,
     cut to the rate limit (rad)."""
-    change = (jnp.clip(command, s.lo, s.hi) - position) * s.gain
-    return position + jnp.clip(change, -s.max_change, s.max_change)
+    change = (lax.clamp(s.lo, command, s.hi) - position) * s.gain  # clamp: one operation, as jnp.clip's two
+    return position + lax.clamp(-s.max_change, change, s.max_change)
 
 
 def prepare(model: RcamModel, scenario, dt_s: float) -> RcamRunParams:
