@@ -33,6 +33,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
+from jax import lax
 
 from mcfdd.compute import once
 from mcfdd.plant import control_law, rcam
@@ -129,7 +130,7 @@ def _pi(integrator, error, offset, kp, ki, lo, hi, dt_s, one):
     raw = once(offset + kp * (error + ki * integrator), one)
     push = kp * error
     winding = ((raw > hi) & (push > 0)) | ((raw < lo) & (push < 0))
-    return jnp.where(winding, integrator, integrator + dt_s * error), jnp.clip(raw, lo, hi)
+    return jnp.where(winding, integrator, integrator + dt_s * error), lax.clamp(lo, raw, hi)
 
 
 def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, powers: ControlPowers,
@@ -144,14 +145,14 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
                                 jnp.cos(pilot.heading_change_rad - body.psi))
     # atan(V k_psi e / g) as atan2 of two variables: XLA CPU's vectorised atan2 of a constant gives results that
     # depend on the lane at 512-bit vectors (the campaign's compiler options), so a run would depend on its batch
-    nav_bank = jnp.clip(jnp.arctan2(params.heading_gain_1_s * heading_error, g_v), -params.nav_bank_rad,
-                        params.nav_bank_rad)
+    nav_bank = lax.clamp(-params.nav_bank_rad, jnp.arctan2(params.heading_gain_1_s * heading_error, g_v),
+                         params.nav_bank_rad)
     bank_target = jnp.where(pilot.heading_mode, nav_bank, pilot.bank_rad)
-    target_rate = jnp.clip(params.bank_gain_1_s * (bank_target - body.phi), -roll.max_roll_rate_rad_s,
-                           roll.max_roll_rate_rad_s)
+    target_rate = lax.clamp(-roll.max_roll_rate_rad_s, params.bank_gain_1_s * (bank_target - body.phi),
+                            roll.max_roll_rate_rad_s)
     max_change = params.max_roll_accel_rad_s2 * dt_s
     demand = jnp.where(pilot.heading_mode | pilot.bank_mode,
-                       state.roll_demand + jnp.clip(target_rate - state.roll_demand, -max_change, max_change),
+                       state.roll_demand + lax.clamp(-max_change, target_rate - state.roll_demand, max_change),
                        control_law.roll_rate_demand(roll, pilot.stick, body.phi))
     p_cmd = control_law.protect(roll, demand, body.phi)
     gains = control_law.schedule(roll, powers.roll_damping, powers.aileron)
@@ -159,7 +160,7 @@ def step(params: FlightLawParams, roll: control_law.RollLawParams, trim: Trim, p
 
     flying = jnp.abs(pilot.pitch_stick) >= params.stick_deadband
     path = jnp.where(flying, meas.gamma, state.path_rad)
-    bank = jnp.clip(body.phi, -roll.bank_hold_rad, roll.bank_hold_rad)
+    bank = lax.clamp(-roll.bank_hold_rad, body.phi, roll.bank_hold_rad)
     dnz = params.max_load_factor_step * jnp.clip(pilot.pitch_stick, -1.0, 1.0)
     q_cmd = g_v * jnp.sin(bank) * jnp.tan(bank) + jnp.where(
         flying, g_v * (dnz + params.load_factor_gain * (1.0 / jnp.cos(bank) + dnz - meas.nz)),
