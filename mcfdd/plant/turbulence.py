@@ -231,7 +231,7 @@ def gust_params(level, span_m) -> GustParams:
 
 def gust_scales(params: GustParams, altitude_m, one=1.0):
     """(sigma_u = sigma_v m/s, L_u = L_v m, sigma_w m/s, L_w m) at an altitude (m), as :func:`intensity`."""
-    h_ft = jnp.maximum(altitude_m / FT_TO_M, 10.0)
+    h_ft = once(jnp.maximum(altitude_m / FT_TO_M, 10.0), one)  # read by the table's cell and the scales
     x = (jnp.clip(h_ft, _HIGH_START_FT, _HIGH_KNOTS_FT[-1]) - _HIGH_START_FT) * (1.0 / _HIGH_STEP_FT)
     cell = jnp.minimum(jnp.floor(x), _HIGH_CELLS - 1)
     i = cell.astype(jnp.int32)
