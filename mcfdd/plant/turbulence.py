@@ -239,8 +239,8 @@ def gust_scales(params: GustParams, altitude_m, one=1.0):
     return _scales(h_ft, params.sigma_w_low, once(sigma_hi, one), one)
 
 
-def _second_order(z1, z2, neg_r, decay, n1, n2, one):
-    """Exact step of the normalised Dryden v/w filter over r time constants (``neg_r`` = -r, ``decay`` = exp(-r)).
+def _second_order(z1, z2, r, decay, n1, n2, one):
+    """Exact step of the normalised Dryden v/w filter over ``r`` time constants (``decay`` = exp(-r)).
 
     In units of its time constant, with states scaled to unit stationary variance, the filter
     (1 + sqrt3 s) / (1 + s)^2 has ``Phi = exp(-r) [[1 + r, r], [-r, 1 - r]]`` and the sample noise
@@ -250,7 +250,7 @@ def _second_order(z1, z2, neg_r, decay, n1, n2, one):
     -expm1(-X) + e^-X X (1 - X/2)), so the Cholesky factor holds in float32 down to r of 1e-4.
     With y = sqrt(X S(X) / 6) the factors are L11 = e^-X/2 X y and L21 = Q12 / L11 = e^-X/2 X / (2 y).
     """
-    x = -2.0 * neg_r
+    x = 2.0 * r
     series = 1.0 / math.factorial(_S_TERMS + 2)  # S(X) / 6
     for k in range(_S_TERMS - 2, -1, -1):
         series = series * x + 1.0 / math.factorial(k + 3)
@@ -258,22 +258,20 @@ def _second_order(z1, z2, neg_r, decay, n1, n2, one):
     decay_x = decay * x
     l11 = decay_x * root
     l21 = decay_x / (2.0 * root)
-    q22 = decay * decay_x * (1.0 - 0.5 * x) - jnp.expm1(2.0 * neg_r)
+    q22 = -jnp.expm1(-x) + decay * decay_x * (1.0 - 0.5 * x)
     l22 = jnp.sqrt(jnp.maximum(q22 - l21 * l21, 0.0))
-    l11, l21, l22, neg_a = once((l11, l21, l22, decay * neg_r * (z1 + z2)), one)
-    return decay * z1 - neg_a + l11 * n1, decay * z2 + neg_a + l21 * n1 + l22 * n2
+    l11, l21, l22, a = once((l11, l21, l22, decay * r * (z1 + z2)), one)
+    return decay * z1 + a + l11 * n1, decay * z2 - a + l21 * n1 + l22 * n2
 
 
-def _first_order(z, neg_r, decay, n):
-    """Exact step of a unit-variance first-order Gauss-Markov state over r time constants (``neg_r`` = -r,
-    ``decay`` = exp(-r))."""
-    return decay * z + jnp.sqrt(-jnp.expm1(2.0 * neg_r)) * n
+def _first_order(z, r, decay, n):
+    """Exact step of a unit-variance first-order Gauss-Markov state over ``r`` time constants (``decay`` = exp(-r))."""
+    return decay * z + jnp.sqrt(-jnp.expm1(-2.0 * r)) * n
 
 
-def _low_pass(f, y, y_next, neg_r, decay):
-    """f + : y low-passed by 1 / (1 + tau s) over r = dt / tau (``neg_r`` = -r, ``decay`` = exp(-r)), exact for y
-    linear between its samples."""
-    return decay * f - jnp.expm1(neg_r) * y + (y_next - y) * (1.0 - jnp.expm1(neg_r) / neg_r)
+def _low_pass(f, y, y_next, r, decay):
+    """f + : y low-passed by 1 / (1 + tau s) over ``r`` = dt / tau, exact for y linear between its samples."""
+    return decay * f - jnp.expm1(-r) * y + (y_next - y) * (1.0 + jnp.expm1(-r) / r)
 
 
 def _normalised(z1, z2):
@@ -298,15 +296,15 @@ def gust_step(params: GustParams, state: GustState, altitude_m, tas_m_s, noise6,
     sigma_uv, length_uv, sigma_w, length_w = gust_scales(params, altitude_m, one)
     sigma_uv, sigma_w = once((sigma_uv, sigma_w), one)  # the lengths are read as divisors, where a stored
     # quotient x / 1 would be re-associated and recomputed: each is computed where it is read
-    step_length = -dt_s * tas_m_s  # negated: each sample length r below is held as -r, read by exp(-r)
+    step_length = dt_s * tas_m_s
     r_uv, r_w, r_p = step_length / length_uv, step_length / length_w, step_length * params.span_rate
     r_r = r_p * (4.0 / 3.0)  # tau_r = 3 b / (pi V)
     r_uv, r_w, r_p, r_r = once((r_uv, r_w, r_p, r_r), one)  # stored before their exponentials read them
-    e_uv, e_w, e_p, e_r = once((jnp.exp(r_uv), jnp.exp(r_w), jnp.exp(r_p), jnp.exp(r_r)), one)
+    e_uv, e_w, e_p, e_r = once((jnp.exp(-r_uv), jnp.exp(-r_w), jnp.exp(-r_p), jnp.exp(-r_r)), one)
     zeta_v, zeta_w = once((_normalised(state.v1, state.v2), _normalised(state.w1, state.w2)), one)
     gust = Gust(sigma_uv * state.u, sigma_uv * zeta_v, sigma_w * zeta_w,
                 sigma_w * params.p_scale * length_w ** (-1.0 / 3.0) * state.p,
-                sigma_w * params.span_rate * (state.w_low - zeta_w),
+                -sigma_w * params.span_rate * (zeta_w - state.w_low),
                 sigma_uv * params.span_rate * (4.0 / 3.0) * (zeta_v - state.v_low))
     v1, v2 = once(_second_order(state.v1, state.v2, r_uv, e_uv, noise6[1], noise6[2], one), one)
     w1, w2 = once(_second_order(state.w1, state.w2, r_w, e_w, noise6[3], noise6[4], one), one)
