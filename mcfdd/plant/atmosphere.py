@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 
 from mcfdd.arrays import array_module
-from mcfdd.compute import once
 
 P0_PA = 101325.0
 T0_K = 288.15
@@ -45,6 +44,8 @@ def isa(altitude_m, one=None):
     t_trop = T0_K - LAPSE_K_M * TROPOPAUSE_M
     temperature = xp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
     if one is not None:
+        from mcfdd.compute import once  # JAX only where a step passes ``one``: the config imports this module
+
         temperature = once(temperature, one)
     exponent = G0_M_S2 / (R_J_KG_K * LAPSE_K_M)
     p_trop = P0_PA * (t_trop / T0_K) ** exponent
