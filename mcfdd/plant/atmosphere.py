@@ -32,21 +32,24 @@ KT_TO_M_S = 1852.0 / 3600.0
 FT_TO_M = 0.3048
 
 
-def isa(altitude_m, one=None):
+def isa_temperature(altitude_m):
+    """ISA temperature (K) up to 20 km, shaped like ``altitude_m``."""
+    xp = array_module(altitude_m)
+    h = xp.asarray(altitude_m)
+    return xp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, T0_K - LAPSE_K_M * TROPOPAUSE_M)
+
+
+def isa(altitude_m, temperature_k=None):
     """International Standard Atmosphere up to 20 km.
 
     Returns (temperature K, pressure Pa, density kg/m^3, speed of sound m/s), each shaped like
-    ``altitude_m``. With ``one`` (every sample, :func:`mcfdd.compute.once`) the temperature, which
-    the other three read, is computed once.
+    ``altitude_m``. A caller that already holds :func:`isa_temperature` of ``altitude_m`` (a step
+    that keeps it once) passes it as ``temperature_k``.
     """
     xp = array_module(altitude_m)
     h = xp.asarray(altitude_m)
+    temperature = isa_temperature(h) if temperature_k is None else temperature_k
     t_trop = T0_K - LAPSE_K_M * TROPOPAUSE_M
-    temperature = xp.where(h < TROPOPAUSE_M, T0_K - LAPSE_K_M * h, t_trop)
-    if one is not None:
-        from mcfdd.compute import once  # JAX only where a step passes ``one``: the config imports this module
-
-        temperature = once(temperature, one)
     exponent = G0_M_S2 / (R_J_KG_K * LAPSE_K_M)
     p_trop = P0_PA * (t_trop / T0_K) ** exponent
     pressure = xp.where(

@@ -231,7 +231,8 @@ def step(params: RcamRunParams, state: RcamPlantState, t_s, noise, dt_s: float, 
                                            dt_s, one)
     gust = once(gust, one)
     air = rcam.air_data(b, gust)
-    _, pressure, density, sound = atmosphere.isa(b.altitude, one)
+    temperature = once(atmosphere.isa_temperature(b.altitude), one)
+    _, pressure, density, sound = atmosphere.isa(b.altitude, temperature)
     pressure, density = once((pressure, density), one)  # the speed of sound is read once, as a divisor
     vcas = atmosphere.calibrated_airspeed_at_pressure(air.airspeed / sound, pressure)
     qbar = 0.5 * density * air.airspeed**2
